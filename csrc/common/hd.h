@@ -1,0 +1,11 @@
+// Host/device qualifiers shared by every math header: the same inline function compiles
+// into the C++ (OpenMP) kernels and into the CUDA kernels.
+#pragma once
+
+#if defined(__CUDACC__)
+#define HOST_DEVICE __host__ __device__
+#define FGS_RESTRICT __restrict__
+#else
+#define HOST_DEVICE
+#define FGS_RESTRICT __restrict__
+#endif

@@ -1,0 +1,4 @@
+#include "raster/raster_bind.h"
+namespace fgs {
+void register_raster(pybind11::module& m) {}
+}
