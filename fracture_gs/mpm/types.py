@@ -1,0 +1,118 @@
+"""Plain data types of the Collision-MPM solver (SPEC §5): particles, state, domain, settings."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+from typing import Literal
+
+import torch
+
+BLOCK = 4  # grid block edge in nodes; grids are padded to a multiple of it
+
+
+class SimulationBlowUp(RuntimeError):
+    """The simulation produced NaN/Inf or an impossible velocity; the state was not committed."""
+
+
+@dataclass
+class Domain:
+    """Axis-aligned simulation box with cubic cells: dx = (max - min)[0] / grid."""
+
+    lower: tuple[float, float, float]
+    upper: tuple[float, float, float]
+    grid: int
+
+    @property
+    def dx(self) -> float:
+        return (self.upper[0] - self.lower[0]) / self.grid
+
+    @property
+    def resolution(self) -> tuple[int, int, int]:
+        """Nodes per axis, padded up to a multiple of the block size."""
+        cells = [math.ceil((hi - lo) / self.dx - 1e-6) for lo, hi in zip(self.lower, self.upper)]
+        return tuple(int(math.ceil((c + 1) / BLOCK) * BLOCK) for c in cells)  # type: ignore[return-value]
+
+    @property
+    def size(self) -> float:
+        """Largest edge length of the box."""
+        return max(hi - lo for lo, hi in zip(self.lower, self.upper))
+
+
+@dataclass
+class ContactSettings:
+    """How objects touch: per-object grids + contact impulse, or one shared grid (baseline)."""
+
+    mode: Literal["collision", "mls"] = "collision"
+    strength: float = 1.0   # the paper's μ scaling of the normal impulse
+    friction: float = 0.0   # Coulomb coefficient between objects
+
+
+@dataclass
+class GroundBoundary:
+    """Half-space z >= height with Coulomb friction."""
+
+    height: float
+    friction: float = 0.5
+
+
+@dataclass
+class BoxBoundary:
+    """Domain walls, 3 cells thick: slip, sticky or separate."""
+
+    condition: Literal["slip", "sticky", "separate"] = "slip"
+
+
+Boundary = GroundBoundary | BoxBoundary
+
+
+@dataclass
+class ParticleSet:
+    """Per-particle constant data and initial kinematics (all rows aligned, N particles)."""
+
+    x: torch.Tensor              # (N,3) float32 positions
+    v: torch.Tensor              # (N,3) float32 velocities
+    mass: torch.Tensor           # (N,) float32
+    rest_volume: torch.Tensor    # (N,) float32
+    obj_id: torch.Tensor         # (N,) int32, index into the scene's objects
+    part_id: torch.Tensor        # (N,) int32, part inside its object
+    material_id: torch.Tensor    # (N,) int32, row of the material table
+    is_surface: torch.Tensor     # (N,) bool
+    gaussian_index: torch.Tensor  # (N,) int64, -1 for particles without a trained Gaussian
+
+    def __post_init__(self) -> None:
+        n = self.x.shape[0]
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value.shape[0] != n:
+                raise ValueError(f"ParticleSet.{f.name} has {value.shape[0]} rows, x has {n}")
+        if self.x.ndim != 2 or self.x.shape[1] != 3:
+            raise ValueError(f"ParticleSet.x must be (N,3), got {tuple(self.x.shape)}")
+
+    def __len__(self) -> int:
+        return int(self.x.shape[0])
+
+    def to(self, device: torch.device) -> "ParticleSet":
+        return ParticleSet(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
+
+
+@dataclass
+class SimState:
+    """Evolving per-particle state plus the clock."""
+
+    x: torch.Tensor          # (N,3)
+    v: torch.Tensor          # (N,3)
+    C: torch.Tensor          # (N,3,3) APIC affine velocity
+    F_E: torch.Tensor        # (N,3,3) elastic deformation gradient
+    alpha: torch.Tensor      # (N,) NACC hardening state
+    fractured: torch.Tensor  # (N,) bool, latched
+    time: float = 0.0
+    step: int = 0
+
+
+@dataclass
+class StepStats:
+    """What one call of ``advance`` did."""
+
+    steps: int
+    dt_min: float
+    clamped: int   # particles whose position had to be clamped into the domain
