@@ -172,3 +172,14 @@ def test_dtu_mask_count_mismatch(tmp_path):
     write_dtu(str(tmp_path), rig(3))
     os.remove(tmp_path / "mask" / "002.png")
     assert_fails(tmp_path, "mask", "2 masks for 3 images")
+
+
+def test_dtu_skewed_camera_is_refused(tmp_path):
+    write_dtu(str(tmp_path), rig(2))
+    npz = tmp_path / "cameras_sphere.npz"
+    arrays = dict(np.load(npz))
+    shear = np.eye(4)
+    shear[0, 1] = 0.2  # K[0,1] = 0.2 fy: far more than half a pixel over the image
+    arrays["world_mat_1"] = shear @ arrays["world_mat_1"]
+    np.savez(npz, **arrays)
+    assert_fails(tmp_path, "cameras_sphere.npz", "'world_mat_1'", "skew")

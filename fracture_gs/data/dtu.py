@@ -12,7 +12,7 @@ from fracture_gs.data.images import list_image_files, read_image
 from fracture_gs.data.views import assemble_dataset, split_indices
 
 CAMERAS_FILE = "cameras_sphere.npz"
-SKEW_TOLERANCE = 1e-4   # |K[0,1]| / fx above which the camera is refused (no skew support)
+SKEW_TOLERANCE_PX = 0.5  # largest image shift a dropped skew K[0,1] may cause (in pixels)
 SCALE_MAT_TOLERANCE = 1e-6
 
 
@@ -80,9 +80,14 @@ def load_dtu(source_path: str, split: str = "train", downscale: int = 1,
         if np.linalg.det(world_to_camera[:3, :3]) < 0 or intrinsics[0, 0] <= 0:
             raise DatasetError(f"{cameras_path}: 'world_mat_{view}' does not decompose into a "
                                f"right-handed camera with positive focal lengths")
-        if abs(intrinsics[0, 1]) > SKEW_TOLERANCE * intrinsics[0, 0]:
+        # Camera has no skew term: dropping K[0,1] moves a pixel by skew * y / z, at most
+        # skew * max(cy, H - cy) / fy inside the image
+        skew_shift = abs(intrinsics[0, 1]) * max(intrinsics[1, 2], height - intrinsics[1, 2]) \
+            / intrinsics[1, 1]
+        if skew_shift > SKEW_TOLERANCE_PX:
             raise DatasetError(f"{cameras_path}: 'world_mat_{view}' has skew "
-                               f"{intrinsics[0, 1]:.4g} (skewed pixels are not supported)")
+                               f"{intrinsics[0, 1]:.4g}, which would shift pixels by up to "
+                               f"{skew_shift:.2f} px (skewed pixels are not supported)")
         cameras.append(make_camera(world_to_camera, intrinsics[0, 0], intrinsics[1, 1],
                                    intrinsics[0, 2] + 0.5, intrinsics[1, 2] + 0.5, width,
                                    height, all_images[view]))
