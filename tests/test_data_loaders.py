@@ -130,3 +130,6 @@ def test_scene_bounds_and_subset(tmp_path):
     part = dataset.subset([2, 0])
     assert len(part) == 2 and part.image_paths == [dataset.image_paths[2], dataset.image_paths[0]]
     torch.testing.assert_close(part.images[1], dataset.images[0])
+    moved = dataset.to(dataset.images.device)
+    assert moved.images.device == dataset.images.device and len(moved) == 4
+    torch.testing.assert_close(moved.cameras[1].world_to_camera, dataset.cameras[1].world_to_camera)

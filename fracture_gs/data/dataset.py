@@ -81,6 +81,20 @@ class Dataset:
         radius = 1.1 * float((centers - center).norm(dim=1).max())
         return center, radius
 
+    def to(self, device: torch.device | str) -> "Dataset":
+        """A copy with cameras, images and masks on ``device`` (sparse points stay NumPy)."""
+        return Dataset(
+            cameras=[camera.to(device) for camera in self.cameras],
+            images=self.images.to(device),
+            masks=None if self.masks is None else self.masks.to(device),
+            image_paths=list(self.image_paths),
+            format=self.format,
+            points=self.points,
+            point_colors=self.point_colors,
+            scale_mat=self.scale_mat,
+            background=self.background,
+        )
+
     def subset(self, indices: list[int]) -> "Dataset":
         """A dataset with only the views at ``indices`` (sparse points are shared)."""
         index = torch.as_tensor(indices, dtype=torch.long)

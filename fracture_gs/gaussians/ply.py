@@ -45,8 +45,8 @@ def write_ply(path: str, model: GaussianModel) -> None:
             raise ValueError(f"write_ply({path}): model parameter {name} contains NaN or Inf")
     count = model.num_gaussians
     rest = tensors["sh_rest"].transpose(1, 2).reshape(count, -1)  # channel-major
-    columns = torch.cat([tensors["means"], torch.zeros(count, 3), tensors["sh_dc"].reshape(count, 3),
-                         rest, tensors["opacity_logit"], tensors["log_scales"].expand(-1, 3),
+    columns = torch.cat([tensors["means"], torch.zeros(count, 3),
+                         tensors["sh_dc"].reshape(count, 3), rest, tensors["opacity_logit"], tensors["log_scales"].expand(-1, 3),
                          tensors["quats"]], dim=1).numpy()
     names = ply_property_names(model.sh_degree)
     vertices = np.empty(count, dtype=[(name, "<f4") for name in names])
@@ -107,7 +107,8 @@ def read_ply(path: str, isotropic: bool = False,
     rest_indices = sorted(int(match.group(1)) for name in present
                           if (match := re.fullmatch(r"f_rest_(\d+)", name)))
     if rest_indices != list(range(len(rest_indices))):
-        raise PlyFormatError(f"{path}: f_rest_* properties are not numbered 0..{len(rest_indices) - 1}")
+        raise PlyFormatError(f"{path}: f_rest_* properties are not numbered "
+                             f"0..{len(rest_indices) - 1}")
     if len(rest_indices) not in REST_COUNT_TO_DEGREE:
         raise PlyFormatError(f"{path}: {len(rest_indices)} f_rest_* properties match no SH "
                              f"degree (expected 0, 9, 24 or 45)")
