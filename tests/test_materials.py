@@ -136,24 +136,22 @@ def test_compiled_update_matches_float64_reference() -> None:
     F_E, alpha_new, tau = compiled.constitutive_update(F, alpha, table, material_id)
     F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(
         table, material_id, F.double(), alpha.double())
+    # float32 kernel (double inside) vs float64 twin: only output rounding separates them.
     assert relative_error(F_E, F_ref, 1.0) < 1e-5
-    assert float((alpha_new.double() - alpha_ref).abs().max()) < 1e-5
+    assert float((alpha_new.double() - alpha_ref).abs().max()) < 1e-6
     bulk = table[material_id.long(), mat.COLUMN["bulk"]].double()
     tau_error = ((tau.double() - tau_ref).flatten(1).abs().amax(1)
-                 / torch.maximum(tau_ref.flatten(1).abs().amax(1), 1e-3 * bulk))
-    assert float(tau_error.max()) < 1e-4
+                 / torch.maximum(tau_ref.flatten(1).abs().amax(1), 1e-6 * bulk))
+    assert float(tau_error.max()) < 1e-5
     # The batch exercises every branch of the return map.
-    result = mat.nacc_return_map_strain(
-        principal_strain(F), alpha.double(),
-        *(table[material_id.long(), mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M")))
+    parameters = (table[material_id.long(), mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    result = mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters)
     nacc = material_id > 0
-    e = principal_strain(F).sum(-1)
-    changed = (alpha_ref != alpha.double()) & nacc
     assert int((result.tip & nacc & (alpha_ref < alpha.double())).sum()) > 0     # compression tip
     assert int((result.tip & nacc & (alpha_ref > alpha.double())).sum()) > 0     # tension tip
     assert int((result.projected & ~result.tip & nacc).sum()) > 0                # ellipse
     assert int((~result.projected & nacc).sum()) > 0                             # inside
-    assert int(changed.sum()) > 0 and bool(torch.isfinite(e).all())
+    assert torch.equal(F_E[~result.projected & nacc], F[~result.projected & nacc])
 
 
 @needs_compiled
@@ -179,6 +177,29 @@ def test_backend_dispatch_agrees_and_rejects_bad_ids() -> None:
     for backend in ("cpp", "reference"):
         with pytest.raises(ValueError, match="material_id"):
             mat.constitutive_update(F, alpha, table, bad, backend=backend)
+
+
+@needs_compiled
+def test_unknown_model_gives_nan_and_bad_inputs_are_rejected() -> None:
+    F, alpha, _ = mixed_batch(6, seed=31)
+    table = MaterialTable(MATERIALS[:2]).table()
+    table[1, mat.COLUMN["model"]] = 7.0
+    ids = torch.tensor([0, 1, 0, 1, 0, 1], dtype=torch.int32)
+    for F_E, alpha_new, tau in (compiled.constitutive_update(F, alpha, table, ids),
+                                mat.constitutive_update_reference(table, ids, F, alpha)):
+        unknown = ids == 1
+        assert bool(F_E[unknown].isnan().all() and alpha_new[unknown].isnan().all()
+                    and tau[unknown].isnan().all())
+        assert bool(torch.isfinite(tau[~unknown]).all())
+    with pytest.raises(TypeError, match="F_trial"):
+        compiled.constitutive_update(F.double(), alpha, table, ids)
+    with pytest.raises(ValueError, match="material_table"):
+        compiled.constitutive_update(F, alpha, table[:, :7], ids)
+    # Non-contiguous inputs are accepted.
+    F_t = F.transpose(1, 2)
+    out = compiled.constitutive_update(F_t, alpha, MaterialTable(MATERIALS).table(), ids)
+    ref = compiled.constitutive_update(F_t.contiguous(), alpha, MaterialTable(MATERIALS).table(), ids)
+    assert all(torch.equal(a, b) for a, b in zip(out, ref))
 
 
 def test_material_methods_match_table_reference() -> None:

@@ -7,9 +7,9 @@
 #include "mpm/material_kernels.h"
 
 #ifdef FGS_WITH_CUDA
-#include <ATen/cuda/CUDAContext.h>
 #include <c10/cuda/CUDAException.h>
 #include <c10/cuda/CUDAGuard.h>
+#include <c10/cuda/CUDAStream.h>
 #endif
 
 namespace fgs {
@@ -41,7 +41,7 @@ void check_table(const torch::Tensor& table, const torch::Tensor& material_id, i
 }
 
 #ifdef FGS_WITH_CUDA
-void* current_stream() { return static_cast<void*>(at::cuda::getCurrentCUDAStream().stream()); }
+void* current_stream() { return static_cast<void*>(c10::cuda::getCurrentCUDAStream().stream()); }
 #endif
 
 std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
