@@ -94,6 +94,9 @@ def test_svd3_is_accurate_on_hard_cases() -> None:
         (rotations[:n] * torch.tensor([2.0, 2.0 + 1e-6, 1e-6], dtype=torch.float64)) @ rotations[n:].mT,
         torch.eye(3, dtype=torch.float64).expand(4, 3, 3) * torch.tensor([1.0, -1.0, 1e-3, 0.0],
                                                                          dtype=torch.float64)[:, None, None],
+        torch.randn(n, 3, 1, generator=generator, dtype=torch.float64)
+        * torch.randn(n, 1, 3, generator=generator, dtype=torch.float64),                # rank 1
+        -rotations[n:],                                                                    # reflections
     ]
     F = torch.cat(cases).float()
     U, sigma, V = compiled.svd3_batch(F)
@@ -106,7 +109,9 @@ def test_svd3_is_accurate_on_hard_cases() -> None:
     assert float((V.mT @ V - eye).abs().max()) < 2e-6
     assert torch.allclose(torch.linalg.det(U), torch.ones(len(F), dtype=torch.float64), atol=1e-5)
     assert torch.allclose(torch.linalg.det(V), torch.ones(len(F), dtype=torch.float64), atol=1e-5)
-    assert bool((sigma[:, 0] >= sigma[:, 1]).all()) and bool((sigma[:, 1] >= sigma[:, 2].abs()).all())
+    slack = 1e-6 * sigma[:, 0]  # ordering holds up to round-off (e.g. all sigma equal)
+    assert bool((sigma[:, 0] >= sigma[:, 1] - slack).all())
+    assert bool((sigma[:, 1] >= sigma[:, 2].abs() - slack).all())
     det_sign = torch.sign(torch.linalg.det(F64))
     assert bool((torch.sign(sigma[:, 2]) * det_sign >= 0).all())
     reference = torch.linalg.svdvals(F64)
