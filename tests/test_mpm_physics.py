@@ -96,7 +96,8 @@ def sliding_scene(mode: str) -> tuple[CollisionMPM, int]:
     domain = Domain((0, 0, 0), (1, 1, 1), 32)
     spacing = domain.dx / 2
     lower = lattice_box((0.5, 0.5, 0.4), (0.5, 0.3, 0.1), spacing)
-    upper = lattice_box((0.35, 0.5, 0.4 + 0.05 + 0.05 + spacing), (0.15, 0.15, 0.1), spacing)
+    # The surfaces touch: the upper block's bottom face lies on the lower block's top face.
+    upper = lattice_box((0.35, 0.5, 0.4 + 0.05 + 0.05), (0.15, 0.15, 0.1), spacing)
     bodies = [LatticeBody(lower, (0, 0, 0), 0, spacing), LatticeBody(upper, (1.0, 0, 0), 0, spacing)]
     solver = CollisionMPM(particle_set(bodies, [SOFT.density]), [SOFT], domain,
                           contact=ContactSettings(mode=mode, friction=0.0), boundaries=[], gravity=(0, 0, 0))
