@@ -148,7 +148,7 @@ def drop_scene(alpha0: float, grid: int = 48) -> tuple[CollisionMPM, float]:
     spacing = domain.dx / 2
     block = lattice_box((0.5, 0.5, 0.2), (0.2, 0.2, 0.1), spacing)
     material = NACCMaterial(E=1.0e5, nu=0.3, density=1.0e3, alpha0=alpha0, beta=0.3, xi=1.0, M=2.36)
-    solver = CollisionMPM(particle_set([LatticeBody(block, (0, 0, -6.0), 0, spacing)], [material.density]),
+    solver = CollisionMPM(particle_set([LatticeBody(block, (0, 0, -3.5), 0, spacing)], [material.density]),
                           [material], domain, contact=ContactSettings(), gravity=(0, 0, -9.8),
                           boundaries=[GroundBoundary(height=0.1, friction=0.3)])
     return solver, spacing
