@@ -107,7 +107,7 @@ def oak_top(points: np.ndarray) -> np.ndarray:
 def walnut_legs(points: np.ndarray) -> np.ndarray:
     """Table legs: dark walnut with grain along z."""
     grain = fbm(points * np.array([8.0, 8.0, 0.4]), 6.0, 3, seed=9)
-    return srgb_to_linear(_mix([0.36, 0.20, 0.11], [0.20, 0.10, 0.05], grain))
+    return srgb_to_linear(_mix([0.46, 0.27, 0.15], [0.16, 0.08, 0.04], 1.6 * grain - 0.3))
 
 
 def terracotta_pot(points: np.ndarray, soil_level: float, inner_radius: float) -> np.ndarray:
