@@ -13,6 +13,8 @@ import mcubes
 import numpy as np
 import trimesh
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
@@ -165,15 +167,31 @@ def keep_largest_solid(sdf: np.ndarray) -> np.ndarray:
     return cleaned
 
 
-def connected_component_count(mesh: trimesh.Trimesh) -> int:
-    """Number of vertex-connected pieces of a mesh (fast, via a sparse graph)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+def _vertex_components(mesh: trimesh.Trimesh) -> tuple[int, np.ndarray]:
     edges = mesh.edges_unique
     n = len(mesh.vertices)
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-    count, _ = connected_components(graph, directed=False)
-    return int(count)
+    count, labels = connected_components(graph, directed=False)
+    return int(count), labels
+
+
+def connected_component_count(mesh: trimesh.Trimesh) -> int:
+    """Number of vertex-connected pieces of a mesh (fast, via a sparse graph)."""
+    return _vertex_components(mesh)[0]
+
+
+def drop_small_components(mesh: trimesh.Trimesh, min_fraction: float = 0.002) -> trimesh.Trimesh:
+    """Remove closed pieces with fewer than ``min_fraction`` of the faces (marching-cubes specks
+    where a thin feature, e.g. a leaf tip, is thinner than the grid)."""
+    count, labels = _vertex_components(mesh)
+    if count == 1:
+        return mesh
+    face_labels = labels[mesh.faces[:, 0]]
+    sizes = np.bincount(face_labels, minlength=count)
+    keep = sizes[face_labels] >= min_fraction * len(mesh.faces)
+    cleaned = trimesh.Trimesh(mesh.vertices, mesh.faces[keep], process=False)
+    cleaned.remove_unreferenced_vertices()
+    return cleaned
 
 
 def normalise_to_unit_sphere(mesh: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray, float]:

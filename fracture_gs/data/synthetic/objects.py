@@ -14,7 +14,8 @@ import trimesh
 
 from fracture_gs.data.parts import PartSpec, assign_part_ids, transform_part_spec, single_part_spec
 from fracture_gs.data.synthetic import shapes, teapot, textures
-from fracture_gs.data.synthetic.meshing import Grid, mesh_from_sdf, normalise_to_unit_sphere
+from fracture_gs.data.synthetic.meshing import (Grid, drop_small_components, mesh_from_sdf,
+                                                normalise_to_unit_sphere)
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,7 @@ def build_object(name: str, resolution: int = 256, seed: int = 0) -> SyntheticOb
         raise ValueError(f"unknown object {name!r}; choose one of {', '.join(OBJECT_NAMES)}")
     recipe = RECIPES[name]
     sdf, grid = recipe.build_sdf(resolution, seed)
-    natural_mesh = mesh_from_sdf(sdf, grid)
+    natural_mesh = drop_small_components(mesh_from_sdf(sdf, grid))
     face_parts_natural = assign_part_ids(natural_mesh.triangles_center, recipe.part_spec)
     mesh, center, scale = normalise_to_unit_sphere(natural_mesh)
     spec = transform_part_spec(recipe.part_spec, center, scale)
