@@ -153,3 +153,28 @@ def test_rasterized_silhouette_matches_analytic_disc():
     radius_pixels = camera.fx * math.tan(math.asin(1.0 / 4.0))
     disc = (ii - 32) ** 2 + (jj - 24) ** 2 < radius_pixels ** 2
     assert mask_iou(mask, disc) > 0.97
+
+
+def test_png_conversion_straight_alpha_white_background():
+    from fracture_gs.data.synthetic.writer import rgba8_from_premultiplied
+    image = np.zeros((1, 3, 4), dtype=np.float32)
+    image[0, 0] = [0.5, 0.0, 0.0, 0.5]   # half-covered pure red (premultiplied)
+    image[0, 1] = [0.0, 0.0, 0.0, 0.0]   # background
+    image[0, 2] = [0.2140, 0.2140, 0.2140, 1.0]  # linear 0.214 ~ sRGB 0.5
+    rgba = rgba8_from_premultiplied(image)
+    assert rgba[0, 0].tolist() == [255, 0, 0, 128]
+    assert rgba[0, 1].tolist() == [255, 255, 255, 0]
+    assert abs(int(rgba[0, 2, 0]) - 128) <= 1 and rgba[0, 2, 3] == 255
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    from fracture_gs.data.synthetic.__main__ import main
+    existing = tmp_path / "teapot"
+    existing.mkdir()
+    assert main(["--object", "teapot", "--out", str(existing)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("error: ") and "already exists" in error and "\n" not in error
+    assert main(["--object", "teapot", "--out", str(tmp_path / "x"), "--width", "0"]) == 2
+    assert "--width" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--object", "vase", "--out", str(tmp_path / "y")])

@@ -85,7 +85,8 @@ class PartSpec:
 
     def to_dict(self) -> dict[str, Any]:
         return {"format": PART_SPEC_FORMAT,
-                "parts": [{"id": index, "name": name} for index, name in enumerate(self.part_names)],
+                "parts": [{"id": index, "name": name}
+                          for index, name in enumerate(self.part_names)],
                 "default_part": self.default_part,
                 "rules": [rule.to_dict() for rule in self.rules]}
 

@@ -50,7 +50,8 @@ class Grid:
         stop = np.ceil((np.asarray(upper) - self.origin) / self.spacing).astype(int) + 1
         start = np.clip(start, 0, self.shape)
         stop = np.clip(stop, 0, self.shape)
-        return tuple(slice(int(a), int(b)) for a, b in zip(start, stop))  # type: ignore[return-value]
+        slices = tuple(slice(int(a), int(b)) for a, b in zip(start, stop))
+        return slices  # type: ignore[return-value]
 
     def node_points(self, box: tuple[slice, slice, slice] | None = None) -> np.ndarray:
         """Coordinates (a, b, c, 3) of the nodes of ``box`` (default: all nodes)."""

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
 from fracture_gs.data.parts import BoxRule, HalfSpaceRule, PartSpec, single_part_spec
-from fracture_gs.data.synthetic.meshing import Grid, union_into
+from fracture_gs.data.synthetic.meshing import Grid, SdfFunction, union_into
 
 FAR = 1.0e3  # "no surface near here" value of an empty field
 
@@ -95,7 +95,7 @@ class Leaf:
         return self.center - reach, self.center + reach
 
 
-def evaluate_on_grid(grid: Grid, sdf, slab: int = 16) -> np.ndarray:
+def evaluate_on_grid(grid: Grid, sdf: SdfFunction, slab: int = 16) -> np.ndarray:
     """``sdf`` (a function of (N,3) points) on every grid node, in slabs to bound memory."""
     volume = np.empty(grid.shape)
     for start in range(0, grid.shape[0], slab):

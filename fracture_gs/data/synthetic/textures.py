@@ -96,7 +96,8 @@ def glazed_bowl(points: np.ndarray, inner: np.ndarray) -> np.ndarray:
 
 def oak_top(points: np.ndarray) -> np.ndarray:
     """Table top: light oak, growth rings around an axis along x, warped by noise."""
-    warped = points + 0.05 * (fbm(points * np.array([0.3, 1.0, 1.0]), 3.0, 3, seed=7) - 0.5)[:, None]
+    warp = fbm(points * np.array([0.3, 1.0, 1.0]), 3.0, 3, seed=7) - 0.5
+    warped = points + 0.05 * warp[:, None]
     distance = np.hypot(warped[:, 1] + 0.9, warped[:, 2] - 0.2)
     rings = 0.5 + 0.5 * np.sin(2 * np.pi * 14.0 * distance)
     fine = fbm(points * np.array([0.2, 6.0, 6.0]), 8.0, 2, seed=8)
