@@ -9,8 +9,8 @@ mesh is closed/watertight and consistently oriented; ``--grid`` cells along the 
 
 * ``teapot`` — the Utah teapot from Newell's public 32-patch / 306-point Bézier table,
   tessellated here. The open places of the patch set (lid-rim ring, spout opening, tube ends)
-  are closed by flat caps and the enclosed volume is filled: a **solid** teapot with the lid glued shut and
-  the spout plugged (what a reconstruction from images can recover). One part.
+  are closed by flat caps and the enclosed volume is filled: a **solid** teapot with the lid
+  glued shut and the spout plugged (what a reconstruction from images can recover). One part.
 * ``bowl`` — surface of revolution of a quarter-ellipse profile with a 0.08-thick wall (rounded
   rim) and a foot ring. One part.
 * ``table`` — rounded top slab (part 0 "top") on four tapered legs (part 1 "legs").
