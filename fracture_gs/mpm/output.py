@@ -204,7 +204,8 @@ class SimulationOutput:
         save_npz_atomic(self.particles_path, particle_arrays(particles))
 
     def write_scene(self, scene: Mapping[str, Any]) -> None:
-        write_text_atomic(self.scene_path, yaml.safe_dump(dict(scene), sort_keys=False, default_flow_style=None))
+        text = yaml.safe_dump(dict(scene), sort_keys=False, default_flow_style=None)
+        write_text_atomic(self.scene_path, text)
 
     def write_frame(self, frame: int, state: SimState, row: list[float],
                     solver_state: Mapping[str, Any]) -> None:
