@@ -139,9 +139,9 @@ def test_model_object_transform_parts_and_masses(tmp_path: Path) -> None:
          "transform": {"scale": 2.0, "rotate_deg": [0, 0, 90], "translate": [0.5, 0.5, 0.5]},
          "velocity": [0, 0, -1],
          "materials": [dict(NACC, part=1, density=100.0), dict(NACC, part=0)]},
-        {"name": "ball", "primitive": {"shape": "sphere", "radius": 0.1,
+        {"name": "ball", "primitive": {"shape": "sphere", "radius": 0.08,
                                        "particles_per_cell": 1},
-         "transform": {"translate": [0.5, 0.5, 0.8]},
+         "transform": {"translate": [0.5, 0.5, 0.72]},
          "materials": [{"model": "elastic", "E": 1e3, "nu": 0.2, "density": 3.0}]},
     ]))
     built = build_scene(config, torch.device("cpu"))
@@ -204,8 +204,7 @@ def test_object_outside_domain_is_an_error(translate: list[float], boundaries: l
 def test_object_inside_margin_is_accepted() -> None:
     # grid 16 → dx = 1/16, margin = 3/16 = 0.1875; a 0.2 box centred at 0.3 spans 0.2..0.4
     config = parse_scene(scene_with([
-        {"name": "cube", "primitive": {"shape": "box", "size": [0.2, 0.2, 0.2],
-                                       "particles_per_cell": 1},
+        {"name": "cube", "primitive": {"shape": "box", "size": [0.2, 0.2, 0.2]},
          "transform": {"translate": [0.3, 0.3, 0.3]}, "materials": [NACC]}]))
     built = build_scene(config)
-    assert len(built.particles) == pytest.approx(0.008 * 16 ** 3, rel=0.05)
+    assert len(built.particles) == pytest.approx(0.008 * 16 ** 3 * 8, rel=0.05)

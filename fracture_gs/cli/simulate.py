@@ -79,6 +79,16 @@ def resolve_device(name: str | None) -> torch.device:
     return torch.device(name)
 
 
+def check_backend(device: torch.device, backend: str) -> None:
+    """InvalidInput when ``--backend cpp`` is asked for but the kernels are not built."""
+    from fracture_gs._backend import use_compiled
+
+    try:
+        use_compiled(device, backend)
+    except RuntimeError as exc:
+        raise InvalidInput("--backend", str(exc)) from None
+
+
 def create_solver(built: BuiltScene, device: torch.device, backend: str) -> Any:
     """A ``CollisionMPM`` for the built scene (imported here: the solver is the heavy part)."""
     from fracture_gs.mpm.solver import CollisionMPM
@@ -175,10 +185,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     output = SimulationOutput(out_dir, built.object_names)
     if resume:
         check_resumable(output, config, built)
-    try:
-        solver = create_solver(built, device, backend)
-    except RuntimeError as exc:  # e.g. compiled kernels requested but not built
-        raise SceneError("--backend", str(exc)) from None
+    solver = create_solver(built, device, backend)
 
     if resume:
         checkpoint = output.load_checkpoint()
@@ -253,6 +260,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.frames is not None and args.frames < 1:
             raise InvalidInput("--frames", f"{args.frames} is not >= 1")
         device = resolve_device(args.device)
+        check_backend(device, args.backend)
         config = load_scene(args.scene)
         if args.frames is not None:
             config = replace(config, frames=args.frames)
