@@ -145,8 +145,8 @@ class BallisticSolver:
                 "step": s.step}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
-        self.state = SimState(**{k: d[k] for k in ("x", "v", "C", "F_E", "alpha", "fractured",
-                                                   "time", "step")})
+        arrays = {k: torch.as_tensor(d[k]) for k in ("x", "v", "C", "F_E", "alpha", "fractured")}
+        self.state = SimState(**arrays, time=float(d["time"]), step=int(d["step"]))
 
 
 @pytest.fixture

@@ -174,7 +174,8 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
                    log: TextIO | None = None) -> RunSummary:
     """Build the scene, write the output folder and advance ``config.frames`` frames.
 
-    Raises :class:`SceneError` for invalid input (before anything is simulated) and
+    Raises :class:`SceneError` / :class:`InvalidInput` for invalid input (before anything is
+    simulated or written) and
     :class:`SimulationBlowUp` (message naming the frame and time) when the run fails; in
     that case the frames already written, the CSV, the plot and the checkpoint are valid.
     """
@@ -185,6 +186,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     output = SimulationOutput(out_dir, built.object_names)
     if resume:
         check_resumable(output, config, built)
+    check_backend(device, backend)
     solver = create_solver(built, device, backend)
 
     if resume:
@@ -259,11 +261,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.frames is not None and args.frames < 1:
             raise InvalidInput("--frames", f"{args.frames} is not >= 1")
-        device = resolve_device(args.device)
-        check_backend(device, args.backend)
         config = load_scene(args.scene)
         if args.frames is not None:
             config = replace(config, frames=args.frames)
+        device = resolve_device(args.device)
         out_dir = Path(args.out) if args.out else DEFAULT_OUTPUT_ROOT / config.name
         run_simulation(config, out_dir, device=device, backend=args.backend,
                        resume=args.resume)

@@ -8,7 +8,7 @@ Layout of ``output/sims/<name>/``::
     frames/frame_00000.npz   x, v, F_E, alpha (float32), fractured (bool); frame 0 = start
     diagnostics.csv     one row per frame (columns: :func:`diagnostics_columns`)
     diagnostics.png     momentum and energies over time
-    checkpoint.pt       the solver's full state after the last complete frame
+    checkpoint.npz      the solver's full state after the last complete frame
 
 Every file is written to a temporary name in the same folder and renamed into place, so a
 killed run never leaves a half-written file. For each frame the checkpoint is written
@@ -35,7 +35,8 @@ from fracture_gs.mpm.types import ParticleSet, SimState
 SCENE_FILE = "scene.yaml"
 PARTICLES_FILE = "particles.npz"
 FRAMES_DIR = "frames"
-CHECKPOINT_FILE = "checkpoint.pt"
+CHECKPOINT_FILE = "checkpoint.npz"
+_SOLVER_PREFIX = "solver/"
 DIAGNOSTICS_CSV = "diagnostics.csv"
 DIAGNOSTICS_PNG = "diagnostics.png"
 FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")
@@ -214,9 +215,11 @@ class SimulationOutput:
             raise ValueError(f"diagnostics row has {len(row)} values, expected "
                              f"{len(self.columns)} ({', '.join(self.columns)})")
         self.rows = [r for r in self.rows if int(r[0]) < frame] + [list(row)]
-        payload = {"frame": frame, "solver": dict(solver_state), "rows": self.rows,
-                   "columns": self.columns}
-        atomic_write(self.checkpoint_path, lambda handle: torch.save(payload, handle))
+        payload = {_SOLVER_PREFIX + key: _plain_array(key, value)
+                   for key, value in solver_state.items()}
+        payload.update(frame=np.int64(frame), rows=np.asarray(self.rows, dtype=np.float64),
+                       columns=np.asarray(self.columns, dtype=np.str_))
+        save_npz_atomic(self.checkpoint_path, payload)
         save_npz_atomic(self.frame_path(frame), frame_arrays(state))
         self.write_csv()
 
@@ -230,14 +233,17 @@ class SimulationOutput:
 
     # reading back
     def load_checkpoint(self) -> Checkpoint:
-        """Read ``checkpoint.pt``; FileNotFoundError if there is none."""
-        payload = torch.load(self.checkpoint_path, map_location="cpu", weights_only=True)
-        if payload.get("columns") != self.columns:
-            raise ValueError(f"{self.checkpoint_path}: diagnostics columns differ from the scene's "
-                             "objects")
-        self.rows = [list(r) for r in payload["rows"]]
-        return Checkpoint(frame=int(payload["frame"]), solver_state=payload["solver"],
-                          rows=self.rows)
+        """Read ``checkpoint.npz``; FileNotFoundError if there is none."""
+        with np.load(self.checkpoint_path, allow_pickle=False) as data:
+            columns = [str(c) for c in data["columns"]]
+            if columns != self.columns:
+                raise ValueError(f"{self.checkpoint_path}: diagnostics columns {columns} differ "
+                                 f"from the scene's {self.columns}")
+            solver_state = {key[len(_SOLVER_PREFIX):]: data[key] for key in data.files
+                            if key.startswith(_SOLVER_PREFIX)}
+            frame = int(data["frame"])
+            self.rows = [list(map(float, r)) for r in data["rows"]]
+        return Checkpoint(frame=frame, solver_state=solver_state, rows=self.rows)
 
     def read_scene(self) -> Any:
         from fracture_gs.config.scene import read_yaml
@@ -248,6 +254,16 @@ class SimulationOutput:
         """Render ``diagnostics.png`` from the rows so far (no-op without rows)."""
         if self.rows:
             plot_diagnostics(self.columns, self.rows, self.object_names, self.png_path)
+
+
+def _plain_array(key: str, value: Any) -> np.ndarray:
+    """A solver ``state_dict`` entry as a numpy array (tensors moved to the CPU, exact)."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().numpy()
+    if isinstance(value, (np.ndarray, np.generic, int, float, bool)):
+        return np.asarray(value)
+    raise TypeError(f"state_dict['{key}'] is a {type(value).__name__}; checkpoints hold only "
+                    "arrays, tensors and numbers")
 
 
 def _csv_value(column: str, value: float) -> str:
