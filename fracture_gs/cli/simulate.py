@@ -190,6 +190,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     solver = create_solver(built, device, backend)
 
     if resume:
+        output.remove_temporaries()
         checkpoint = output.load_checkpoint()
         solver.load_state_dict(checkpoint.solver_state)
         output.write_scene(config.to_dict())

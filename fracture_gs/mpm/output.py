@@ -193,9 +193,17 @@ class SimulationOutput:
         return self.frames_dir / frame_file_name(frame)
 
     # writing
+    def remove_temporaries(self) -> None:
+        """Delete temporary files that a killed run left behind (never complete files)."""
+        for folder in (self.root, self.frames_dir):
+            if folder.is_dir():
+                for tmp in folder.glob(".*.tmp"):
+                    tmp.unlink(missing_ok=True)
+
     def start(self, scene: Mapping[str, Any], particles: ParticleSet) -> None:
         """Begin a fresh run: drop the files of an earlier run, write scene and particles."""
         self.frames_dir.mkdir(parents=True, exist_ok=True)
+        self.remove_temporaries()
         for stale in self.frames_dir.glob("frame_*.npz"):
             stale.unlink()
         for name in (CHECKPOINT_FILE, DIAGNOSTICS_CSV, DIAGNOSTICS_PNG):
