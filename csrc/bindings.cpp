@@ -2,6 +2,7 @@
 // (csrc/<subsystem>/*_bind.cpp) so that the kernels themselves stay free of torch headers.
 #include <torch/extension.h>
 
+#include "mpm/material_bind.h"
 #include "mpm/mpm_bind.h"
 #include "raster/raster_bind.h"
 
@@ -30,6 +31,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.doc() = "fracture_gs compiled kernels (C++/OpenMP and, when built, CUDA)";
   m.def("built_with_cuda", &built_with_cuda, "True if the CUDA kernels were compiled in");
   m.def("openmp_max_threads", &openmp_max_threads, "OpenMP threads the CPU kernels use");
+  fgs::register_materials(m);
   fgs::register_mpm(m);
   fgs::register_raster(m);
 }

@@ -1,4 +1,270 @@
+// Torch bindings of the MPM kernels: argument checks, memory, and dispatch on the device.
+// The kernels themselves (mpm_cpu.cpp, mpm_cuda.cu) never see a torch type.
 #include "mpm/mpm_bind.h"
+
+#include <vector>
+
+#include "common/constitutive.h"
+#include "mpm/mpm_kernels.h"
+
+#ifdef FGS_WITH_CUDA
+#include <ATen/cuda/CUDAContext.h>
+#endif
+
 namespace fgs {
-void register_mpm(pybind11::module& m) {}
+namespace {
+
+using torch::Tensor;
+
+void check_tensor(const Tensor& t, const char* name, torch::ScalarType dtype, const Tensor& like) {
+  TORCH_CHECK(t.scalar_type() == dtype, name, " has dtype ", t.scalar_type(), ", expected ", dtype);
+  TORCH_CHECK(t.is_contiguous(), name, " must be contiguous");
+  TORCH_CHECK(t.device() == like.device(), name, " is on ", t.device(), ", expected ", like.device());
 }
+
+MPMGeometry make_geometry(const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                          int64_t n_grids) {
+  TORCH_CHECK(lower.size() == 3 && blocks.size() == 3, "lower and blocks must have 3 entries");
+  TORCH_CHECK(dx > 0, "dx must be positive");
+  MPMGeometry geo;
+  for (int d = 0; d < 3; ++d) geo.lower[d] = (float)lower[d];
+  geo.dx = (float)dx;
+  geo.inv_dx = (float)(1.0 / dx);
+  geo.shape = GridShape{(int)blocks[0], (int)blocks[1], (int)blocks[2]};
+  geo.n_grids = (int)n_grids;
+  return geo;
+}
+
+void check_grid(const Tensor& t, const char* name, int channels, const MPMGeometry& geo, const Tensor& like) {
+  check_tensor(t, name, torch::kFloat32, like);
+  TORCH_CHECK(t.numel() == (int64_t)geo.n_grids * geo.shape.nodes() * channels, name, " has ", t.numel(),
+              " elements, expected ", (int64_t)geo.n_grids * geo.shape.nodes() * channels);
+}
+
+Tensor to_tensor(const std::vector<int32_t>& values) {
+  Tensor t = torch::empty({(int64_t)values.size()}, torch::kInt32);
+  if (!values.empty()) std::memcpy(t.data_ptr<int32_t>(), values.data(), values.size() * sizeof(int32_t));
+  return t;
+}
+
+GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor& velocity,
+                       const std::optional<Tensor>& mass_gradient) {
+  GridArrays g;
+  g.mass = mass.defined() ? mass.data_ptr<float>() : nullptr;
+  g.momentum = momentum.defined() ? momentum.data_ptr<float>() : nullptr;
+  g.velocity = velocity.defined() ? velocity.data_ptr<float>() : nullptr;
+  g.mass_gradient = (mass_gradient.has_value() && mass_gradient->defined()) ? mass_gradient->data_ptr<float>() : nullptr;
+  return g;
+}
+
+#ifdef FGS_WITH_CUDA
+void* current_stream() { return (void*)at::cuda::getCurrentCUDAStream().stream(); }
+#endif
+
+// Sorts particles into blocks (CPU). Returns (order, cell_start, cell_key, color_cells,
+// color_start, touched, contact_blocks) as int32 tensors.
+std::vector<Tensor> bin_particles(const Tensor& x, const Tensor& grid_id, const std::vector<double>& lower,
+                                  double dx, const std::vector<int64_t>& blocks, int64_t n_grids) {
+  TORCH_CHECK(x.device().is_cpu(), "mpm_bin_particles: the compiled binning is CPU only");
+  check_tensor(x, "x", torch::kFloat32, x);
+  check_tensor(grid_id, "grid_id", torch::kInt32, x);
+  TORCH_CHECK(x.dim() == 2 && x.size(1) == 3, "x must be (N,3)");
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  ParticleBins bins;
+  long long bad = bin_particles_cpu(x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), x.size(0), geo, &bins);
+  TORCH_CHECK(bad < 0, "particle ", bad, " is outside the grid (or has a non-finite position)");
+  return {to_tensor(bins.order), to_tensor(bins.cell_start), to_tensor(bins.cell_key), to_tensor(bins.color_cells),
+          to_tensor(bins.color_start), to_tensor(bins.touched), to_tensor(bins.contact_blocks)};
+}
+
+void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, const Tensor& C, const Tensor& stress,
+         const Tensor& mass, const Tensor& rest_volume, const Tensor& grid_id, const std::vector<double>& lower,
+         double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt, Tensor grid_mass,
+         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient) {
+  TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  const int64_t n = x.size(0);
+  check_tensor(x, "x", torch::kFloat32, x);
+  check_tensor(v, "v", torch::kFloat32, x);
+  check_tensor(C, "C", torch::kFloat32, x);
+  check_tensor(stress, "stress", torch::kFloat32, x);
+  check_tensor(mass, "mass", torch::kFloat32, x);
+  check_tensor(rest_volume, "rest_volume", torch::kFloat32, x);
+  check_tensor(grid_id, "grid_id", torch::kInt32, x);
+  TORCH_CHECK(v.numel() == 3 * n && C.numel() == 9 * n && stress.numel() == 9 * n && mass.numel() == n &&
+                  rest_volume.numel() == n && grid_id.numel() == n,
+              "p2g: particle arrays have inconsistent sizes");
+  check_grid(grid_mass, "grid_mass", 1, geo, x);
+  check_grid(grid_momentum, "grid_momentum", 3, geo, x);
+  if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
+  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, b);
+  ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
+                   mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>()};
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient);
+  Tensor color_start = bins[4].to(torch::kCPU);
+  for (const auto& t : bins) TORCH_CHECK(t.device() == x.device(), "bins must be on the particles' device");
+  BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
+                bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
+                (int)bins[5].numel()};
+  if (x.device().is_cpu()) {
+    p2g_cpu(view, p, geo, (float)dt, grid);
+    return;
+  }
+#ifdef FGS_WITH_CUDA
+  p2g_cuda(view, p, geo, (float)dt, grid, current_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+}
+
+void grid_update(const Tensor& touched, const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                 int64_t n_grids, double dt, const std::vector<double>& gravity, double mass_eps, Tensor grid_mass,
+                 Tensor grid_momentum, Tensor grid_velocity) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  check_tensor(touched, "touched", torch::kInt32, grid_mass);
+  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
+  check_grid(grid_momentum, "grid_momentum", 3, geo, grid_mass);
+  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  TORCH_CHECK(gravity.size() == 3, "gravity must have 3 entries");
+  const float g[3] = {(float)gravity[0], (float)gravity[1], (float)gravity[2]};
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, std::nullopt);
+  if (grid_mass.device().is_cpu()) {
+    grid_update_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid);
+    return;
+  }
+#ifdef FGS_WITH_CUDA
+  grid_update_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid,
+                   current_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+}
+
+BoundaryParams make_boundary(int64_t wall_condition, int64_t wall_cells, const std::vector<int64_t>& cells,
+                             bool has_ground, double ground_height, double ground_friction, double lower_z, double dx) {
+  TORCH_CHECK(cells.size() == 3, "cells must have 3 entries");
+  BoundaryParams bc;
+  bc.wall_condition = (int)wall_condition;
+  bc.wall_cells = (int)wall_cells;
+  for (int d = 0; d < 3; ++d) bc.cells[d] = (int)cells[d];
+  bc.has_ground = has_ground ? 1 : 0;
+  bc.ground_height = (float)ground_height;
+  bc.ground_friction = (float)ground_friction;
+  bc.lower_z = (float)lower_z;
+  bc.dx = (float)dx;
+  return bc;
+}
+
+void boundaries(const Tensor& touched, const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                int64_t n_grids, int64_t wall_condition, int64_t wall_cells, const std::vector<int64_t>& cells,
+                bool has_ground, double ground_height, double ground_friction, double mass_eps, Tensor grid_mass,
+                Tensor grid_velocity) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  check_tensor(touched, "touched", torch::kInt32, grid_mass);
+  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
+  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  const BoundaryParams bc = make_boundary(wall_condition, wall_cells, cells, has_ground, ground_height,
+                                          ground_friction, lower[2], dx);
+  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, std::nullopt);
+  if (grid_mass.device().is_cpu()) {
+    boundaries_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid);
+    return;
+  }
+#ifdef FGS_WITH_CUDA
+  boundaries_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid,
+                  current_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+}
+
+void collision(const Tensor& contact_blocks, const std::vector<double>& lower, double dx,
+               const std::vector<int64_t>& blocks, int64_t n_grids, double strength, double friction, double mass_eps,
+               Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  check_tensor(contact_blocks, "contact_blocks", torch::kInt32, grid_mass);
+  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
+  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
+  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient);
+  if (grid_mass.device().is_cpu()) {
+    collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
+                  (float)friction, (float)mass_eps, grid);
+    return;
+  }
+#ifdef FGS_WITH_CUDA
+  collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
+                 (float)friction, (float)mass_eps, grid, current_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+}
+
+// Returns the number of clamped particles. Outputs are written into the given tensors.
+int64_t g2p(const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
+            const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
+            const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids,
+            double dt, const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out,
+            Tensor v_out, Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  const int64_t n = x.size(0);
+  check_tensor(x, "x", torch::kFloat32, x);
+  check_tensor(F_E, "F_E", torch::kFloat32, x);
+  check_tensor(alpha, "alpha", torch::kFloat32, x);
+  check_tensor(fractured, "fractured", torch::kBool, x);
+  check_tensor(grid_id, "grid_id", torch::kInt32, x);
+  check_tensor(material_id, "material_id", torch::kInt32, x);
+  check_tensor(material_table, "material_table", torch::kFloat32, x);
+  TORCH_CHECK(material_table.dim() == 2 && material_table.size(1) == kMatFields, "material_table must be (M, ",
+              kMatFields, ")");
+  check_grid(grid_velocity, "grid_velocity", 3, geo, x);
+  TORCH_CHECK(F_E.numel() == 9 * n && alpha.numel() == n && fractured.numel() == n && grid_id.numel() == n &&
+                  material_id.numel() == n,
+              "g2p: particle arrays have inconsistent sizes");
+  const Tensor* outs[] = {&x_out, &v_out, &C_out, &F_out, &alpha_out, &stress_out};
+  const int64_t out_sizes[] = {3 * n, 3 * n, 9 * n, 9 * n, n, 9 * n};
+  for (int i = 0; i < 6; ++i) {
+    check_tensor(*outs[i], "g2p output", torch::kFloat32, x);
+    TORCH_CHECK(outs[i]->numel() == out_sizes[i], "g2p output has the wrong size");
+  }
+  check_tensor(fractured_out, "fractured_out", torch::kBool, x);
+  TORCH_CHECK(clamp_lower.size() == 3 && clamp_upper.size() == 3, "clamp bounds must have 3 entries");
+  G2PInputs in;
+  in.x = x.data_ptr<float>();
+  in.F_E = F_E.data_ptr<float>();
+  in.alpha = alpha.data_ptr<float>();
+  in.fractured = reinterpret_cast<const uint8_t*>(fractured.data_ptr<bool>());
+  in.grid_id = grid_id.data_ptr<int32_t>();
+  in.material_id = material_id.data_ptr<int32_t>();
+  in.material_table = material_table.data_ptr<float>();
+  for (int d = 0; d < 3; ++d) {
+    in.clamp_lower[d] = (float)clamp_lower[d];
+    in.clamp_upper[d] = (float)clamp_upper[d];
+  }
+  G2POutputs out{x_out.data_ptr<float>(), v_out.data_ptr<float>(), C_out.data_ptr<float>(), F_out.data_ptr<float>(),
+                 alpha_out.data_ptr<float>(), stress_out.data_ptr<float>(),
+                 reinterpret_cast<uint8_t*>(fractured_out.data_ptr<bool>())};
+  if (x.device().is_cpu()) return g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out);
+#ifdef FGS_WITH_CUDA
+  Tensor counter = torch::zeros({1}, x.options().dtype(torch::kInt64));
+  g2p_cuda(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out,
+           reinterpret_cast<long long*>(counter.data_ptr<int64_t>()), current_stream());
+  return counter.item<int64_t>();
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+  return 0;
+#endif
+}
+
+}  // namespace
+
+void register_mpm(pybind11::module& m) {
+  m.def("mpm_bin_particles", &bin_particles, "Sort particles into grid blocks (CPU)");
+  m.def("mpm_p2g", &p2g, "Particle-to-grid transfer into per-object grids");
+  m.def("mpm_grid_update", &grid_update, "Momentum to velocity plus gravity on touched blocks");
+  m.def("mpm_boundaries", &boundaries, "Domain walls and ground on touched blocks");
+  m.def("mpm_collision", &collision, "Collision-MPM contact impulses between object grids");
+  m.def("mpm_g2p", &g2p, "Grid-to-particle transfer, advection and the return map");
+}
+
+}  // namespace fgs

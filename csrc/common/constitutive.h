@@ -1,0 +1,200 @@
+// Constitutive models of the MPM solver (SPEC §5.3): St. Venant-Kirchhoff elasticity on the
+// Hencky strain, and the NACC return map (Wolper et al. 2019) with CD-MPM hardening.
+//
+// All functions are HOST_DEVICE inline and shared by the OpenMP and CUDA kernels. Interfaces
+// are float32 (row-major float[9] matrices); internally everything runs in double (a handful
+// of flops per particle), so the float results are the correctly rounded double results.
+//
+// Material table row (float[8], see MatField and docs/design_mpm.md):
+//   model (0 elastic, 1 nacc), mu, lambda, bulk K, beta, xi, M, alpha_threshold.
+//
+// Inverted elements (det F < 0): svd3 returns sigma3 < 0. The Hencky strain uses |sigma|,
+// eps_i = ln max(|sigma_i|, 1e-4): an inverted F is treated as its mirror image. Then
+// tau = U diag(2 mu eps + lambda tr eps) U^T is still exactly (d psi / dF) F^T (because
+// d ln|s| / ds = 1/s), and the NACC return map, when it projects, returns a positive-determinant
+// F_E = U diag(exp eps') V^T. Inside the yield surface (and for the elastic model) F is returned
+// unchanged, inverted or not.
+#pragma once
+#include <cmath>
+
+#include "common/hd.h"
+#include "common/svd3.h"
+
+namespace fgs {
+
+// Columns of one material-table row.
+enum MatField : int {
+  kMatModel = 0,           // 0 = elastic, 1 = nacc
+  kMatMu = 1,              // Lame mu
+  kMatLambda = 2,          // Lame lambda
+  kMatBulk = 3,            // K = lambda + 2 mu / 3
+  kMatBeta = 4,            // NACC beta (tension/compression asymmetry)
+  kMatXi = 5,              // NACC xi (hardening)
+  kMatM = 6,               // NACC M (slope of the critical state line)
+  kMatAlphaThreshold = 7,  // fracture flag: fractured once alpha >= this (used by the solver)
+  kMatFields = 8
+};
+
+enum MaterialModel : int { kModelElastic = 0, kModelNacc = 1 };
+
+constexpr double kMinSingularValue = 1e-4;  // sigma clamp of the Hencky strain
+constexpr double kNaccP0Floor = 1e-5;       // p0 = K (1e-5 + sinh(xi max(-alpha, 0)))
+constexpr double kNaccYieldTol = 1e-8;      // y > 1e-8 K^2 triggers the projection
+constexpr double kNaccHardenFloor = 1e-4;   // hardening only when p0 > 1e-4 K
+
+namespace constitutive_detail {
+
+HOST_DEVICE inline double hencky(double s) {
+  const double a = fabs(s);
+  return log(a > kMinSingularValue ? a : kMinSingularValue);
+}
+
+// R = U diag(d) W^T (double, row-major, singular vectors as columns).
+HOST_DEVICE inline void compose(const double U[9], const double d[3], const double W[9], double R[9]) {
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      R[3 * i + j] = U[3 * i] * d[0] * W[3 * j] + U[3 * i + 1] * d[1] * W[3 * j + 1] +
+                     U[3 * i + 2] * d[2] * W[3 * j + 2];
+}
+
+// tau = U diag(2 mu eps + lambda (sum eps)) U^T.
+HOST_DEVICE inline void kirchhoff_from_strain(double mu, double lambda, const double U[9],
+                                              const double eps[3], float tau[9]) {
+  const double tr = eps[0] + eps[1] + eps[2];
+  const double d[3] = {2.0 * mu * eps[0] + lambda * tr, 2.0 * mu * eps[1] + lambda * tr,
+                       2.0 * mu * eps[2] + lambda * tr};
+  double T[9];
+  compose(U, d, U, T);
+  for (int i = 0; i < 9; ++i) tau[i] = static_cast<float>(T[i]);
+}
+
+HOST_DEVICE inline void fill_nan(float F[9], float* alpha, float tau[9]) {
+  const float nan = NAN;
+  for (int i = 0; i < 9; ++i) {
+    F[i] = nan;
+    tau[i] = nan;
+  }
+  *alpha = nan;
+}
+
+}  // namespace constitutive_detail
+
+// Kirchhoff stress of the Hencky StVK model for F = U diag(sigma) V^T (U, sigma from svd3):
+// tau = U diag(2 mu eps + lambda tr(eps)) U^T, eps = ln max(|sigma|, 1e-4).
+HOST_DEVICE inline void hencky_kirchhoff(float mu, float lambda, const float U[9],
+                                         const float sigma[3], float tau[9]) {
+  double Ud[9];
+  for (int i = 0; i < 9; ++i) Ud[i] = U[i];
+  const double eps[3] = {constitutive_detail::hencky(sigma[0]), constitutive_detail::hencky(sigma[1]),
+                         constitutive_detail::hencky(sigma[2])};
+  constitutive_detail::kirchhoff_from_strain(mu, lambda, Ud, eps, tau);
+}
+
+// Kirchhoff stress tau(F) of the Hencky StVK model with the mu, lambda of a table row
+// (any model: the elasticity is the same).
+HOST_DEVICE inline void kirchhoff_stress(const float* mat_row, const float F[9], float tau[9]) {
+  double Fd[9], U[9], s[3], V[9];
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
+  svd3(Fd, U, s, V);
+  const double eps[3] = {constitutive_detail::hencky(s[0]), constitutive_detail::hencky(s[1]),
+                         constitutive_detail::hencky(s[2])};
+  constitutive_detail::kirchhoff_from_strain(mat_row[kMatMu], mat_row[kMatLambda], U, eps, tau);
+}
+
+// Elastic model: F and alpha unchanged, tau = tau(F).
+HOST_DEVICE inline void elastic_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
+  (void)alpha;
+  kirchhoff_stress(mat_row, F, tau);
+}
+
+// NACC return map (SPEC §5.3). On entry F = F_trial, on exit F = F_E; alpha updated;
+// tau = Kirchhoff stress of F_E.
+HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
+  using constitutive_detail::hencky;
+  const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda], K = mat_row[kMatBulk];
+  const double beta = mat_row[kMatBeta], xi = mat_row[kMatXi], M = mat_row[kMatM];
+  double a = *alpha;
+
+  double Fd[9], U[9], s[3], V[9];
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
+  svd3(Fd, U, s, V);
+  const double eps[3] = {hencky(s[0]), hencky(s[1]), hencky(s[2])};
+  const double e = eps[0] + eps[1] + eps[2];
+  const double dev[3] = {eps[0] - e / 3.0, eps[1] - e / 3.0, eps[2] - e / 3.0};
+  const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
+
+  const double softened = (-a > 0.0) ? -a : 0.0;  // max(-alpha, 0)
+  const double p0 = K * (kNaccP0Floor + sinh(xi * softened));
+  const double p = -K * e;
+  const double q = sqrt(1.5) * 2.0 * mu * dev_norm;
+
+  double eps_new[3];
+  bool projected = true;
+  if (p > p0) {  // compression tip
+    const double e_new = -p0 / K;
+    for (int i = 0; i < 3; ++i) eps_new[i] = e_new / 3.0;
+    a += e - e_new;
+  } else if (p < -beta * p0) {  // tension tip: cohesion lost
+    const double e_new = beta * p0 / K;
+    for (int i = 0; i < 3; ++i) eps_new[i] = e_new / 3.0;
+    a += e - e_new;
+  } else {
+    const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
+    if (y > kNaccYieldTol * K * K) {
+      // Here (p + beta p0)(p0 - p) >= 0, so y > 0 implies q > 0; the guard is belt and braces.
+      const double q_new = M * sqrt((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta));
+      const double scale = (q > 0.0) ? q_new / q : 0.0;
+      for (int i = 0; i < 3; ++i) eps_new[i] = e / 3.0 + scale * dev[i];  // volume preserving
+      if (p0 > kNaccHardenFloor * K && -beta * p0 < p && p < p0) {
+        // CD-MPM hardening: move alpha as if p went toward the ellipse centre along the ray.
+        const double pc = 0.5 * (1.0 - beta) * p0;
+        const double half_axis = 0.5 * (1.0 + beta) * p0;
+        const double t = M * half_axis / sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
+        const double p_final = pc + t * (p - pc);
+        a += (p_final - p) / K;
+      }
+    } else {
+      projected = false;  // inside the yield surface: F unchanged
+    }
+  }
+
+  if (projected) {
+    const double d[3] = {exp(eps_new[0]), exp(eps_new[1]), exp(eps_new[2])};
+    double R[9];
+    constitutive_detail::compose(U, d, V, R);
+    for (int i = 0; i < 9; ++i) F[i] = static_cast<float>(R[i]);
+    *alpha = static_cast<float>(a);
+    constitutive_detail::kirchhoff_from_strain(mu, lambda, U, eps_new, tau);
+  } else {
+    constitutive_detail::kirchhoff_from_strain(mu, lambda, U, eps, tau);
+  }
+}
+
+// Dispatch on the model column. F: F_trial in, F_E out; alpha: in/out; tau: Kirchhoff stress.
+// An unknown model code gives NaN outputs (the solver's blow-up check reports it).
+HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
+  const int model = static_cast<int>(mat_row[kMatModel]);
+  if (model == kModelElastic) {
+    elastic_update(mat_row, F, alpha, tau);
+  } else if (model == kModelNacc) {
+    nacc_update(mat_row, F, alpha, tau);
+  } else {
+    constitutive_detail::fill_nan(F, alpha, tau);
+  }
+}
+
+// Elastic energy density per unit rest volume: psi = mu |eps|^2 + lambda/2 (tr eps)^2,
+// eps = ln max(|sigma|, 1e-4) (same for every model).
+HOST_DEVICE inline float elastic_energy_density(const float* mat_row, const float F[9]) {
+  double Fd[9], U[9], s[3], V[9];
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
+  svd3(Fd, U, s, V);
+  const double eps[3] = {constitutive_detail::hencky(s[0]), constitutive_detail::hencky(s[1]),
+                         constitutive_detail::hencky(s[2])};
+  const double tr = eps[0] + eps[1] + eps[2];
+  const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda];
+  return static_cast<float>(mu * (eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]) +
+                            0.5 * lambda * tr * tr);
+}
+
+}  // namespace fgs

@@ -1,0 +1,156 @@
+// MLS-MPM math shared by the CPU and CUDA kernels (SPEC §5.2, §5.4, §5.5).
+//
+// Grid layout: nodes are stored block-major. A block is 4x4x4 nodes (64 consecutive floats);
+// blocks are ordered x-major: block = (bi * by + bj) * bz + bk. The linear node index is
+// separable, index(i,j,k) = axis_offset_x(i) + axis_offset_y(j) + axis_offset_z(k), which lets
+// the 27-node stencil be addressed with three small per-axis tables.
+#pragma once
+#include <cmath>
+
+#include "common/hd.h"
+
+namespace fgs {
+
+constexpr int kBlockBits = 2;
+constexpr int kBlock = 1 << kBlockBits;      // nodes per block edge
+constexpr int kBlockNodes = kBlock * kBlock * kBlock;
+
+struct GridShape {
+  int bx, by, bz;  // blocks per axis
+  HOST_DEVICE int blocks() const { return bx * by * bz; }
+  HOST_DEVICE long long nodes() const { return (long long)blocks() * kBlockNodes; }
+};
+
+HOST_DEVICE inline int offset_x(int i, const GridShape& s) {
+  return (i >> kBlockBits) * s.by * s.bz * kBlockNodes + (i & (kBlock - 1)) * kBlock * kBlock;
+}
+HOST_DEVICE inline int offset_y(int j, const GridShape& s) {
+  return (j >> kBlockBits) * s.bz * kBlockNodes + (j & (kBlock - 1)) * kBlock;
+}
+HOST_DEVICE inline int offset_z(int k, const GridShape& s) {
+  return (k >> kBlockBits) * kBlockNodes + (k & (kBlock - 1));
+}
+HOST_DEVICE inline int node_index(int i, int j, int k, const GridShape& s) {
+  return offset_x(i, s) + offset_y(j, s) + offset_z(k, s);
+}
+// Inverse of node_index: integer node coordinates of a linear index.
+HOST_DEVICE inline void node_coords(int index, const GridShape& s, int* ijk) {
+  int block = index / kBlockNodes, local = index % kBlockNodes;
+  int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
+  ijk[0] = bi * kBlock + local / (kBlock * kBlock);
+  ijk[1] = bj * kBlock + (local / kBlock) % kBlock;
+  ijk[2] = bk * kBlock + local % kBlock;
+}
+
+// Quadratic B-spline weights of one particle along one axis.
+// X is the particle coordinate in cell units; base = floor(X - 0.5), f = X - base in [0.5, 1.5).
+// w[a] is the weight of node base + a, dw[a] its derivative with respect to the particle
+// position (in 1/length units: divide by dx).
+struct AxisWeights {
+  int base;
+  float f;
+  float w[3];
+  float dw[3];
+};
+
+HOST_DEVICE inline AxisWeights axis_weights(float X, float inv_dx) {
+  AxisWeights a;
+  a.base = (int)floorf(X - 0.5f);
+  a.f = X - (float)a.base;
+  float f = a.f;
+  a.w[0] = 0.5f * (1.5f - f) * (1.5f - f);
+  a.w[1] = 0.75f - (f - 1.f) * (f - 1.f);
+  a.w[2] = 0.5f * (f - 0.5f) * (f - 0.5f);
+  a.dw[0] = -(1.5f - f) * inv_dx;
+  a.dw[1] = -2.f * (f - 1.f) * inv_dx;
+  a.dw[2] = (f - 0.5f) * inv_dx;
+  return a;
+}
+
+// APIC affine momentum matrix A = m C - (4 dt / dx^2) V0 tau (row-major 3x3).
+HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass, float rest_volume,
+                                    float dt, float inv_dx, float* A) {
+  float stress_scale = 4.f * dt * inv_dx * inv_dx * rest_volume;
+  for (int i = 0; i < 9; ++i) A[i] = mass * C[i] - stress_scale * tau[i];
+}
+
+// Contact between two bodies at one grid node (SPEC §5.4, Bardenhagen's centre-of-mass form).
+// Velocities va, vb are updated in place; returns true if an impulse was applied.
+// ga, gb: mass gradients (sum m_p grad w) of each body at the node, pointing out of that body.
+HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb, const float* ga,
+                                        const float* gb, float strength, float friction) {
+  float na = sqrtf(ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
+  float nb = sqrtf(gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]);
+  if (!(na > 0.f) || !(nb > 0.f)) return false;
+  float n[3];
+  for (int d = 0; d < 3; ++d) n[d] = ga[d] / na - gb[d] / nb;
+  float nn = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  if (!(nn > 1e-6f)) return false;
+  for (int d = 0; d < 3; ++d) n[d] /= nn;
+  float vrel[3] = {va[0] - vb[0], va[1] - vb[1], va[2] - vb[2]};
+  float vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2];
+  if (!(vn > 0.f)) return false;  // separating or resting: no impulse
+  float reduced = ma * mb / (ma + mb);
+  float jn = reduced * vn;
+  float dp[3];
+  for (int d = 0; d < 3; ++d) dp[d] = -strength * jn * n[d];
+  if (friction > 0.f) {
+    float vt[3] = {vrel[0] - vn * n[0], vrel[1] - vn * n[1], vrel[2] - vn * n[2]};
+    float vt_norm = sqrtf(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+    if (vt_norm > 1e-12f) {
+      float jt = fminf(friction * jn, reduced * vt_norm);
+      for (int d = 0; d < 3; ++d) dp[d] -= jt * vt[d] / vt_norm;
+    }
+  }
+  for (int d = 0; d < 3; ++d) {
+    va[d] += dp[d] / ma;
+    vb[d] -= dp[d] / mb;
+  }
+  return true;
+}
+
+// Boundary settings shared by the kernels (SPEC §5.5).
+enum WallCondition { kWallNone = 0, kWallSlip = 1, kWallSticky = 2, kWallSeparate = 3 };
+
+struct BoundaryParams {
+  int wall_condition;     // WallCondition for the domain box, kWallNone if no box boundary
+  int wall_cells;         // wall thickness in cells (3)
+  int cells[3];           // cells per axis of the domain (nodes 0..cells)
+  int has_ground;         // 1 if a ground half-space z >= ground_height exists
+  float ground_height;    // in world units
+  float ground_friction;  // Coulomb coefficient
+  float lower_z;          // domain lower corner z, world units
+  float dx;
+};
+
+// Applies the domain walls and the ground to one node velocity (node coords ijk).
+HOST_DEVICE inline void apply_boundary(const int* ijk, const BoundaryParams& b, float* v) {
+  if (b.wall_condition != kWallNone) {
+    for (int d = 0; d < 3; ++d) {
+      bool lower = ijk[d] < b.wall_cells;
+      bool upper = ijk[d] > b.cells[d] - b.wall_cells;
+      if (!lower && !upper) continue;
+      if (b.wall_condition == kWallSticky) {
+        v[0] = v[1] = v[2] = 0.f;
+        return;
+      }
+      bool into_wall = lower ? (v[d] < 0.f) : (v[d] > 0.f);
+      if (b.wall_condition == kWallSlip || into_wall) v[d] = 0.f;
+    }
+  }
+  if (b.has_ground) {
+    float z = b.lower_z + ijk[2] * b.dx;
+    if (z <= b.ground_height && v[2] < 0.f) {
+      float vn = -v[2];  // speed into the ground
+      v[2] = 0.f;
+      float vt = sqrtf(v[0] * v[0] + v[1] * v[1]);
+      if (vt > 0.f) {
+        float scale = fmaxf(0.f, 1.f - b.ground_friction * vn / vt);
+        v[0] *= scale;
+        v[1] *= scale;
+      }
+    }
+  }
+}
+
+}  // namespace fgs

@@ -1,0 +1,114 @@
+// Per-particle and per-node MPM transfer steps shared by the CPU and CUDA kernels: the loops in
+// csrc/mpm/mpm_cpu.cpp and csrc/mpm/mpm_cuda.cu call these functions and differ only in how they
+// iterate.
+#pragma once
+#include <cstdint>
+
+#include "common/constitutive.h"
+#include "common/hd.h"
+#include "common/mat3.h"
+#include "common/mpm_math.h"
+
+namespace fgs {
+
+// Geometry shared by all MPM kernels.
+struct MPMGeometry {
+  float lower[3];   // domain lower corner
+  float dx;
+  float inv_dx;
+  GridShape shape;  // blocks per axis (same for every object grid)
+  int n_grids;      // objects in collision mode, 1 in mls mode
+};
+
+struct G2PInputs {
+  const float* x;
+  const float* F_E;
+  const float* alpha;
+  const uint8_t* fractured;
+  const int32_t* grid_id;
+  const int32_t* material_id;
+  const float* material_table;  // (M, kMatFields)
+  float clamp_lower[3];         // particle positions are clamped into [clamp_lower, clamp_upper]
+  float clamp_upper[3];
+};
+
+struct G2POutputs {
+  float* x;
+  float* v;
+  float* C;
+  float* F_E;
+  float* alpha;
+  float* stress;
+  uint8_t* fractured;
+};
+
+// Grid update of one node: velocity = momentum / mass + dt g, or zero without mass.
+HOST_DEVICE inline void grid_node_velocity(float mass, const float* momentum, float dt, const float* gravity,
+                                           float mass_eps, float* velocity) {
+  for (int d = 0; d < 3; ++d) velocity[d] = mass > mass_eps ? momentum[d] / mass + dt * gravity[d] : 0.f;
+}
+
+// G2P of particle q: gathers v and the APIC matrix C from its grid, advects and clamps the
+// position, updates F_E through the material's return map and latches the fracture flag.
+// Returns true if the position had to be clamped into the domain.
+HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                     const float* grid_velocity, const G2POutputs& out) {
+  const GridShape& s = geo.shape;
+  const float dx = geo.dx;
+  AxisWeights aw[3];
+  for (int d = 0; d < 3; ++d) aw[d] = axis_weights((in.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+  const float* velocity = grid_velocity + 3 * (long long)in.grid_id[q] * s.nodes();
+  float vp[3] = {0.f, 0.f, 0.f};
+  float B[9] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
+  for (int a = 0; a < 3; ++a) {
+    const int ox = offset_x(aw[0].base + a, s);
+    const float px = ((float)a - aw[0].f) * dx;
+    for (int b = 0; b < 3; ++b) {
+      const int oy = offset_y(aw[1].base + b, s);
+      const float py = ((float)b - aw[1].f) * dx;
+      const float wab = aw[0].w[a] * aw[1].w[b];
+      for (int c = 0; c < 3; ++c) {
+        const float w = wab * aw[2].w[c];
+        const float pz = ((float)c - aw[2].f) * dx;
+        const float* vi = velocity + 3 * (ox + oy + offset_z(aw[2].base + c, s));
+        for (int d = 0; d < 3; ++d) {
+          const float wv = w * vi[d];
+          vp[d] += wv;
+          B[3 * d] += wv * px;
+          B[3 * d + 1] += wv * py;
+          B[3 * d + 2] += wv * pz;
+        }
+      }
+    }
+  }
+  const float apic_scale = 4.f * geo.inv_dx * geo.inv_dx;
+  float C[9];
+  for (int i = 0; i < 9; ++i) C[i] = apic_scale * B[i];
+  bool clamped = false;
+  for (int d = 0; d < 3; ++d) {
+    float xn = in.x[3 * q + d] + dt * vp[d];
+    if (xn < in.clamp_lower[d]) { xn = in.clamp_lower[d]; clamped = true; }
+    if (xn > in.clamp_upper[d]) { xn = in.clamp_upper[d]; clamped = true; }
+    out.x[3 * q + d] = xn;
+    out.v[3 * q + d] = vp[d];
+  }
+  // F_trial = (I + dt C) F_E, then the material's return map.
+  float G[9];
+  for (int i = 0; i < 9; ++i) G[i] = dt * C[i] + ((i % 4 == 0) ? 1.f : 0.f);
+  float F[9];
+  mat3_mul(G, in.F_E + 9 * q, F);
+  const float* mat = in.material_table + (long long)in.material_id[q] * kMatFields;
+  float alpha = in.alpha[q];
+  float tau[9];
+  constitutive_update(mat, F, &alpha, tau);
+  for (int i = 0; i < 9; ++i) {
+    out.C[9 * q + i] = C[i];
+    out.F_E[9 * q + i] = F[i];
+    out.stress[9 * q + i] = tau[i];
+  }
+  out.alpha[q] = alpha;
+  out.fractured[q] = (in.fractured[q] || alpha >= mat[kMatAlphaThreshold]) ? 1 : 0;
+  return clamped;
+}
+
+}  // namespace fgs

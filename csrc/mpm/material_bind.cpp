@@ -1,0 +1,154 @@
+// torch <-> raw-pointer glue for the material kernels (csrc/mpm/material_kernels.*).
+#include "mpm/material_bind.h"
+
+#include <tuple>
+
+#include "common/constitutive.h"
+#include "mpm/material_kernels.h"
+
+#ifdef FGS_WITH_CUDA
+#include <c10/cuda/CUDAException.h>
+#include <c10/cuda/CUDAGuard.h>
+#include <c10/cuda/CUDAStream.h>
+#endif
+
+namespace fgs {
+
+namespace {
+
+void check_float_tensor(const torch::Tensor& t, const char* name) {
+  TORCH_CHECK_TYPE(t.scalar_type() == torch::kFloat32, name, " must be float32, got ", t.scalar_type());
+}
+
+void check_deformation(const torch::Tensor& F, const char* name) {
+  TORCH_CHECK_VALUE(F.dim() == 3 && F.size(1) == 3 && F.size(2) == 3, name,
+                    " must have shape (N, 3, 3), got ", F.sizes());
+  check_float_tensor(F, name);
+}
+
+void check_table(const torch::Tensor& table, const torch::Tensor& material_id, int64_t n,
+                 const torch::Device& device) {
+  TORCH_CHECK_VALUE(table.dim() == 2 && table.size(1) == kMatFields,
+                    "material_table must have shape (M, ", static_cast<int>(kMatFields), "), got ",
+                    table.sizes());
+  check_float_tensor(table, "material_table");
+  TORCH_CHECK_VALUE(material_id.dim() == 1 && material_id.size(0) == n,
+                    "material_id must have shape (", n, ",), got ", material_id.sizes());
+  TORCH_CHECK_TYPE(material_id.scalar_type() == torch::kInt32, "material_id must be int32, got ",
+                   material_id.scalar_type());
+  TORCH_CHECK_VALUE(table.device() == device && material_id.device() == device,
+                    "material_table and material_id must be on ", device);
+}
+
+#ifdef FGS_WITH_CUDA
+void* current_stream() { return static_cast<void*>(c10::cuda::getCurrentCUDAStream().stream()); }
+#endif
+
+std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
+    const torch::Tensor& F_trial, const torch::Tensor& alpha, const torch::Tensor& material_table,
+    const torch::Tensor& material_id) {
+  check_deformation(F_trial, "F_trial");
+  const int64_t n = F_trial.size(0);
+  TORCH_CHECK_VALUE(alpha.dim() == 1 && alpha.size(0) == n, "alpha must have shape (", n,
+                    ",), got ", alpha.sizes());
+  check_float_tensor(alpha, "alpha");
+  TORCH_CHECK_VALUE(alpha.device() == F_trial.device(), "alpha must be on ", F_trial.device());
+  check_table(material_table, material_id, n, F_trial.device());
+
+  const auto F_in = F_trial.contiguous();
+  const auto alpha_in = alpha.contiguous();
+  const auto table = material_table.contiguous();
+  const auto ids = material_id.contiguous();
+  auto F_out = torch::empty_like(F_in);
+  auto alpha_out = torch::empty_like(alpha_in);
+  auto tau = torch::empty_like(F_in);
+  if (F_in.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    const c10::cuda::CUDAGuard guard(F_in.device());
+    constitutive_update_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(),
+                             table.data_ptr<float>(), table.size(0), ids.data_ptr<int32_t>(),
+                             F_out.data_ptr<float>(), alpha_out.data_ptr<float>(),
+                             tau.data_ptr<float>(), current_stream());
+    C10_CUDA_KERNEL_LAUNCH_CHECK();
+#else
+    TORCH_CHECK(false, "constitutive_update: fracture_gs._C was built without CUDA");
+#endif
+  } else {
+    const int64_t invalid = constitutive_update_cpu(
+        n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(),
+        table.size(0), ids.data_ptr<int32_t>(), F_out.data_ptr<float>(),
+        alpha_out.data_ptr<float>(), tau.data_ptr<float>());
+    TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
+                      table.size(0), ")");
+  }
+  return {F_out, alpha_out, tau};
+}
+
+torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& material_table,
+                                const torch::Tensor& material_id) {
+  check_deformation(F_E, "F_E");
+  const int64_t n = F_E.size(0);
+  check_table(material_table, material_id, n, F_E.device());
+  const auto F_in = F_E.contiguous();
+  const auto table = material_table.contiguous();
+  const auto ids = material_id.contiguous();
+  auto psi = torch::empty({n}, F_in.options());
+  if (F_in.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    const c10::cuda::CUDAGuard guard(F_in.device());
+    elastic_energy_cuda(n, F_in.data_ptr<float>(), table.data_ptr<float>(), table.size(0),
+                        ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_stream());
+    C10_CUDA_KERNEL_LAUNCH_CHECK();
+#else
+    TORCH_CHECK(false, "elastic_energy: fracture_gs._C was built without CUDA");
+#endif
+  } else {
+    const int64_t invalid = elastic_energy_cpu(n, F_in.data_ptr<float>(), table.data_ptr<float>(),
+                                               table.size(0), ids.data_ptr<int32_t>(),
+                                               psi.data_ptr<float>());
+    TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
+                      table.size(0), ")");
+  }
+  return psi;
+}
+
+std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torch::Tensor& F) {
+  check_deformation(F, "F");
+  const int64_t n = F.size(0);
+  const auto F_in = F.contiguous();
+  auto U = torch::empty_like(F_in);
+  auto V = torch::empty_like(F_in);
+  auto sigma = torch::empty({n, 3}, F_in.options());
+  if (F_in.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    const c10::cuda::CUDAGuard guard(F_in.device());
+    svd3_batch_cuda(n, F_in.data_ptr<float>(), U.data_ptr<float>(), sigma.data_ptr<float>(),
+                    V.data_ptr<float>(), current_stream());
+    C10_CUDA_KERNEL_LAUNCH_CHECK();
+#else
+    TORCH_CHECK(false, "svd3_batch: fracture_gs._C was built without CUDA");
+#endif
+  } else {
+    svd3_batch_cpu(n, F_in.data_ptr<float>(), U.data_ptr<float>(), sigma.data_ptr<float>(),
+                   V.data_ptr<float>());
+  }
+  return {U, sigma, V};
+}
+
+}  // namespace
+
+void register_materials(pybind11::module& m) {
+  m.def("constitutive_update", &constitutive_update_op,
+        "Return map + Kirchhoff stress per particle: (F_trial (N,3,3) f32, alpha (N,) f32, "
+        "material_table (M,8) f32, material_id (N,) i32) -> (F_E, alpha_new, tau)",
+        pybind11::arg("F_trial"), pybind11::arg("alpha"), pybind11::arg("material_table"),
+        pybind11::arg("material_id"));
+  m.def("elastic_energy", &elastic_energy_op,
+        "Elastic energy density per unit rest volume: (F_E, material_table, material_id) -> psi (N,)",
+        pybind11::arg("F_E"), pybind11::arg("material_table"), pybind11::arg("material_id"));
+  m.def("svd3_batch", &svd3_batch_op,
+        "F = U diag(sigma) V^T with det U = det V = +1: F (N,3,3) f32 -> (U, sigma (N,3), V)",
+        pybind11::arg("F"));
+}
+
+}  // namespace fgs

@@ -1,0 +1,85 @@
+// CUDA twins of material_kernels.cpp: one thread per particle, same header math.
+#include <cuda_runtime.h>
+
+#include "common/constitutive.h"
+#include "common/svd3.h"
+#include "mpm/material_kernels.h"
+
+namespace fgs {
+
+namespace {
+
+constexpr int kThreads = 128;
+
+inline unsigned int blocks_for(int64_t n) {
+  return static_cast<unsigned int>((n + kThreads - 1) / kThreads);
+}
+
+__global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ F_trial,
+                                           const float* __restrict__ alpha_in,
+                                           const float* __restrict__ material_table,
+                                           int64_t n_materials,
+                                           const int32_t* __restrict__ material_id,
+                                           float* F_out, float* alpha_out,
+                                           float* __restrict__ tau_out) {
+  const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  float F[9], tau[9];
+  for (int k = 0; k < 9; ++k) F[k] = F_trial[9 * i + k];
+  float alpha = alpha_in[i];
+  const int32_t id = material_id[i];
+  if (id >= 0 && id < n_materials) {
+    constitutive_update(material_table + kMatFields * static_cast<int64_t>(id), F, &alpha, tau);
+  } else {
+    constitutive_detail::fill_nan(F, &alpha, tau);
+  }
+  for (int k = 0; k < 9; ++k) {
+    F_out[9 * i + k] = F[k];
+    tau_out[9 * i + k] = tau[k];
+  }
+  alpha_out[i] = alpha;
+}
+
+__global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F,
+                                      const float* __restrict__ material_table, int64_t n_materials,
+                                      const int32_t* __restrict__ material_id,
+                                      float* __restrict__ psi) {
+  const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  const int32_t id = material_id[i];
+  psi[i] = (id >= 0 && id < n_materials)
+               ? elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i)
+               : NAN;
+}
+
+__global__ void svd3_batch_kernel(int64_t n, const float* __restrict__ F, float* __restrict__ U,
+                                  float* __restrict__ sigma, float* __restrict__ V) {
+  const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n) return;
+  svd3(F + 9 * i, U + 9 * i, sigma + 3 * i, V + 9 * i);
+}
+
+}  // namespace
+
+void constitutive_update_cuda(int64_t n, const float* F_trial, const float* alpha_in,
+                              const float* material_table, int64_t n_materials,
+                              const int32_t* material_id, float* F_out, float* alpha_out,
+                              float* tau_out, void* stream) {
+  if (n == 0) return;
+  constitutive_update_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
+      n, F_trial, alpha_in, material_table, n_materials, material_id, F_out, alpha_out, tau_out);
+}
+
+void elastic_energy_cuda(int64_t n, const float* F, const float* material_table,
+                         int64_t n_materials, const int32_t* material_id, float* psi, void* stream) {
+  if (n == 0) return;
+  elastic_energy_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
+      n, F, material_table, n_materials, material_id, psi);
+}
+
+void svd3_batch_cuda(int64_t n, const float* F, float* U, float* sigma, float* V, void* stream) {
+  if (n == 0) return;
+  svd3_batch_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(n, F, U, sigma, V);
+}
+
+}  // namespace fgs

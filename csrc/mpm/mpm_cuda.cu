@@ -1,0 +1,200 @@
+// CUDA MPM kernels. Same math as the CPU kernels (csrc/common/*.h); only the loops differ.
+//
+// P2G is a gather: one thread block per particle cell (a 4x4x4 block of stencil bases) of the
+// current colour; each thread owns one node of the 6x6x6 tile the cell's stencils cover and
+// sums the contributions of the cell's particles in their sorted order. Cells of one colour
+// never share a node, so the block adds its tile to the grid without atomics and the result is
+// deterministic.
+#include <cuda_runtime.h>
+
+#include "mpm/mpm_kernels.h"
+
+namespace fgs {
+namespace {
+
+constexpr int kTile = kBlock + 2;               // nodes per tile edge
+constexpr int kTileNodes = kTile * kTile * kTile;
+constexpr int kP2GThreads = 256;                // >= kTileNodes
+constexpr int kChunk = 64;                      // particles staged in shared memory at a time
+constexpr int kThreads = 256;
+
+inline cudaStream_t as_stream(void* stream) { return static_cast<cudaStream_t>(stream); }
+inline unsigned blocks_for(long long n, int threads) { return (unsigned)((n + threads - 1) / threads); }
+
+struct StagedParticle {
+  int base[3];
+  float w[3][3];
+  float dw[3][3];
+  float f[3];
+  float mass;
+  float mv[3];
+  float A[9];
+};
+
+__global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long long nodes, int n_blocks,
+                                   GridArrays grid) {
+  long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_touched * kBlockNodes) return;
+  int key = touched[t / kBlockNodes];
+  long long idx = (long long)(key / n_blocks) * nodes + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
+  grid.mass[idx] = 0.f;
+  for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] = 0.f;
+  if (grid.mass_gradient)
+    for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] = 0.f;
+}
+
+__global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
+                                 GridArrays grid) {
+  __shared__ StagedParticle staged[kChunk];
+  const GridShape s = geo.shape;
+  const int n_blocks = s.blocks();
+  const int cell = bins.color_cells[color_begin + blockIdx.x];
+  const int key = bins.cell_key[cell];
+  const int g = key / n_blocks, block = key % n_blocks;
+  const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
+  const int t = threadIdx.x;
+  const int node[3] = {origin[0] + t / (kTile * kTile), origin[1] + (t / kTile) % kTile, origin[2] + t % kTile};
+  float mass = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f};
+  bool reached = false;
+  const int first = bins.cell_start[cell], last = bins.cell_start[cell + 1];
+  for (int chunk = first; chunk < last; chunk += kChunk) {
+    const int count = min(kChunk, last - chunk);
+    if (t < count) {
+      const int q = bins.order[chunk + t];
+      StagedParticle& sp = staged[t];
+      for (int d = 0; d < 3; ++d) {
+        AxisWeights aw = axis_weights((p.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+        sp.base[d] = aw.base;
+        sp.f[d] = aw.f;
+        for (int a = 0; a < 3; ++a) {
+          sp.w[d][a] = aw.w[a];
+          sp.dw[d][a] = aw.dw[a];
+        }
+      }
+      sp.mass = p.mass[q];
+      for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
+      apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
+    }
+    __syncthreads();
+    if (t < kTileNodes) {
+      for (int i = 0; i < count; ++i) {
+        const StagedParticle& sp = staged[i];
+        const int a = node[0] - sp.base[0], b = node[1] - sp.base[1], c = node[2] - sp.base[2];
+        if (a < 0 || a > 2 || b < 0 || b > 2 || c < 0 || c > 2) continue;
+        reached = true;
+        const float w = sp.w[0][a] * sp.w[1][b] * sp.w[2][c];
+        const float px = ((float)a - sp.f[0]) * geo.dx, py = ((float)b - sp.f[1]) * geo.dx,
+                    pz = ((float)c - sp.f[2]) * geo.dx;
+        mass += w * sp.mass;
+        for (int d = 0; d < 3; ++d)
+          momentum[d] += w * (sp.mv[d] + sp.A[3 * d] * px + sp.A[3 * d + 1] * py + sp.A[3 * d + 2] * pz);
+        gradient[0] += sp.mass * sp.dw[0][a] * sp.w[1][b] * sp.w[2][c];
+        gradient[1] += sp.mass * sp.w[0][a] * sp.dw[1][b] * sp.w[2][c];
+        gradient[2] += sp.mass * sp.w[0][a] * sp.w[1][b] * sp.dw[2][c];
+      }
+    }
+    __syncthreads();
+  }
+  if (t >= kTileNodes || !reached) return;
+  const long long idx = (long long)g * s.nodes() + node_index(node[0], node[1], node[2], s);
+  grid.mass[idx] += mass;
+  for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] += momentum[d];
+  if (grid.mass_gradient)
+    for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] += gradient[d];
+}
+
+__global__ void grid_update_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, float dt, float gx,
+                                   float gy, float gz, float mass_eps, GridArrays grid) {
+  long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_touched * kBlockNodes) return;
+  const int n_blocks = geo.shape.blocks();
+  const int key = touched[t / kBlockNodes];
+  const long long idx = (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes +
+                        t % kBlockNodes;
+  const float gravity[3] = {gx, gy, gz};
+  grid_node_velocity(grid.mass[idx], grid.momentum + 3 * idx, dt, gravity, mass_eps, grid.velocity + 3 * idx);
+}
+
+__global__ void boundaries_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, BoundaryParams bc,
+                                  float mass_eps, GridArrays grid) {
+  long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_touched * kBlockNodes) return;
+  const int n_blocks = geo.shape.blocks();
+  const int key = touched[t / kBlockNodes];
+  const int block = key % n_blocks, local = (int)(t % kBlockNodes);
+  const long long idx = (long long)(key / n_blocks) * geo.shape.nodes() + (long long)block * kBlockNodes + local;
+  if (!(grid.mass[idx] > mass_eps)) return;
+  int ijk[3];
+  node_coords(block * kBlockNodes + local, geo.shape, ijk);
+  apply_boundary(ijk, bc, grid.velocity + 3 * idx);
+}
+
+__global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, MPMGeometry geo, float strength,
+                                 float friction, float mass_eps, GridArrays grid) {
+  long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_contact * kBlockNodes) return;
+  const long long nodes = geo.shape.nodes();
+  const long long node = (long long)contact_blocks[t / kBlockNodes] * kBlockNodes + t % kBlockNodes;
+  for (int a = 0; a < geo.n_grids; ++a) {
+    const long long ia = a * nodes + node;
+    if (!(grid.mass[ia] > mass_eps)) continue;
+    for (int b = a + 1; b < geo.n_grids; ++b) {
+      const long long ib = b * nodes + node;
+      if (!(grid.mass[ib] > mass_eps)) continue;
+      contact_impulse(grid.mass[ia], grid.mass[ib], grid.velocity + 3 * ia, grid.velocity + 3 * ib,
+                      grid.mass_gradient + 3 * ia, grid.mass_gradient + 3 * ib, strength, friction);
+    }
+  }
+}
+
+__global__ void g2p_kernel(long long n, G2PInputs in, MPMGeometry geo, float dt, const float* grid_velocity,
+                           G2POutputs out, unsigned long long* clamped_count) {
+  long long q = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (q >= n) return;
+  if (g2p_particle(q, in, geo, dt, grid_velocity, out)) atomicAdd(clamped_count, 1ull);
+}
+
+}  // namespace
+
+void p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt, GridArrays grid,
+              void* stream) {
+  static_assert(kTileNodes <= kP2GThreads, "one thread per tile node");
+  cudaStream_t st = as_stream(stream);
+  if (bins.n_touched > 0)
+    zero_blocks_kernel<<<blocks_for((long long)bins.n_touched * kBlockNodes, kThreads), kThreads, 0, st>>>(
+        bins.touched, bins.n_touched, geo.shape.nodes(), geo.shape.blocks(), grid);
+  for (int color = 0; color < 8; ++color) {
+    const int begin = bins.color_start[color], count = bins.color_start[color + 1] - begin;
+    if (count > 0) p2g_color_kernel<<<count, kP2GThreads, 0, st>>>(bins, begin, p, geo, dt, grid);
+  }
+}
+
+void grid_update_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,
+                      const float* gravity_host, float mass_eps, GridArrays grid, void* stream) {
+  if (n_touched == 0) return;
+  grid_update_kernel<<<blocks_for((long long)n_touched * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      touched, n_touched, geo, dt, gravity_host[0], gravity_host[1], gravity_host[2], mass_eps, grid);
+}
+
+void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo, const BoundaryParams& bc,
+                     float mass_eps, GridArrays grid, void* stream) {
+  if (n_touched == 0) return;
+  boundaries_kernel<<<blocks_for((long long)n_touched * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      touched, n_touched, geo, bc, mass_eps, grid);
+}
+
+void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, float strength,
+                    float friction, float mass_eps, GridArrays grid, void* stream) {
+  if (n_contact == 0) return;
+  collision_kernel<<<blocks_for((long long)n_contact * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      contact_blocks, n_contact, geo, strength, friction, mass_eps, grid);
+}
+
+void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* grid_velocity,
+              G2POutputs out, long long* clamped_count, void* stream) {
+  if (n == 0) return;
+  g2p_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(
+      n, in, geo, dt, grid_velocity, out, reinterpret_cast<unsigned long long*>(clamped_count));
+}
+
+}  // namespace fgs

@@ -1,0 +1,85 @@
+// Framework-free MPM kernels (raw pointers). The CPU versions live in mpm_cpu.cpp (OpenMP), the
+// CUDA launchers in mpm_cuda.cu; the torch binding (mpm_bind.cpp) allocates memory and
+// dispatches on the device. All matrices are row-major float[9].
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "common/mpm_transfer.h"
+
+namespace fgs {
+
+// Particles sorted into 4x4x4 blocks of their stencil base node, one list per (grid, block).
+// "cells" are the non-empty (grid, block) pairs; "touched" blocks are the ones some stencil
+// reaches (a cell block and its 7 upper neighbours), per grid; "contact" blocks are block ids
+// touched by two or more grids.
+struct ParticleBins {
+  std::vector<int32_t> order;             // (N) particle indices sorted by (grid, block), stable
+  std::vector<int32_t> cell_start;        // (P+1) ranges into order
+  std::vector<int32_t> cell_key;          // (P) grid * n_blocks + block
+  std::vector<int32_t> color_cells;       // (P) cell indices grouped by block parity colour
+  std::vector<int32_t> color_start;       // (9) ranges into color_cells
+  std::vector<int32_t> touched;           // (T) grid * n_blocks + block, ascending
+  std::vector<int32_t> contact_blocks;    // (Q) block ids touched by >= 2 grids, ascending
+};
+
+// Read-only view of the bins for the P2G launch (device pointers for CUDA, except color_start
+// which is always on the host because it sizes the launches).
+struct BinsView {
+  const int32_t* order;
+  const int32_t* cell_start;
+  const int32_t* cell_key;
+  const int32_t* color_cells;
+  const int32_t* color_start;
+  const int32_t* touched;
+  int n_touched;
+};
+
+struct ParticleArrays {  // inputs of P2G, N rows each
+  const float* x;
+  const float* v;
+  const float* C;
+  const float* stress;       // Kirchhoff stress tau
+  const float* mass;
+  const float* rest_volume;
+  const int32_t* grid_id;
+};
+
+struct GridArrays {  // n_grids * nodes rows each
+  float* mass;
+  float* momentum;       // (.., 3)
+  float* velocity;       // (.., 3)
+  float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed
+};
+
+// Returns -1 on success or the index of a particle whose stencil leaves the grid.
+long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
+                            const MPMGeometry& geo, ParticleBins* bins);
+void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+             GridArrays grid);
+void grid_update_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,
+                     const float* gravity, float mass_eps, GridArrays grid);
+void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
+                    const BoundaryParams& bc, float mass_eps, GridArrays grid);
+void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
+                   float strength, float friction, float mass_eps, GridArrays grid);
+// Returns the number of particles whose position was clamped into the domain.
+long long g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                  const float* grid_velocity, G2POutputs out);
+
+#ifdef FGS_WITH_CUDA
+// CUDA launchers: device pointers, stream is a cudaStream_t.
+void p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+              GridArrays grid, void* stream);
+void grid_update_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,
+                      const float* gravity_host, float mass_eps, GridArrays grid, void* stream);
+void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
+                     const BoundaryParams& bc, float mass_eps, GridArrays grid, void* stream);
+void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
+                    float strength, float friction, float mass_eps, GridArrays grid, void* stream);
+// clamped_count: device int64 counter (zeroed by the caller).
+void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
+              const float* grid_velocity, G2POutputs out, long long* clamped_count, void* stream);
+#endif
+
+}  // namespace fgs

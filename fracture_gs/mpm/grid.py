@@ -1,0 +1,107 @@
+"""Grid geometry, grid fields and particle bins shared by the MPM kernels and their twins.
+
+Nodes are stored block-major (4x4x4 nodes per block, blocks x-major), exactly as in
+``csrc/common/mpm_math.h``; :func:`node_index` is the torch version of that layout.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from fracture_gs.mpm.types import BLOCK, Domain
+
+WALL_CELLS = 3  # thickness of the domain walls, in cells
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """Where the grid is and how its nodes are laid out."""
+
+    lower: tuple[float, float, float]
+    dx: float
+    blocks: tuple[int, int, int]   # blocks per axis
+    cells: tuple[int, int, int]    # cells per axis of the domain (nodes 0..cells)
+    n_grids: int
+
+    @staticmethod
+    def from_domain(domain: Domain, n_grids: int) -> "GridGeometry":
+        cells = tuple(math.ceil((hi - lo) / domain.dx - 1e-6) for lo, hi in zip(domain.lower, domain.upper))
+        blocks = tuple(r // BLOCK for r in domain.resolution)
+        return GridGeometry(tuple(float(v) for v in domain.lower), float(domain.dx),
+                            blocks, cells, int(n_grids))  # type: ignore[arg-type]
+
+    @property
+    def nodes_per_grid(self) -> int:
+        return self.blocks[0] * self.blocks[1] * self.blocks[2] * BLOCK ** 3
+
+    @property
+    def n_blocks(self) -> int:
+        return self.blocks[0] * self.blocks[1] * self.blocks[2]
+
+    def clamp_bounds(self) -> tuple[list[float], list[float]]:
+        """Particles are kept inside the domain, outside the 3-cell walls."""
+        lower = [lo + WALL_CELLS * self.dx for lo in self.lower]
+        upper = [lo + (c - WALL_CELLS) * self.dx for lo, c in zip(self.lower, self.cells)]
+        return lower, upper
+
+    def args(self) -> tuple[list[float], float, list[int], int]:
+        """(lower, dx, blocks, n_grids) as the compiled kernels take them."""
+        return list(self.lower), self.dx, list(self.blocks), self.n_grids
+
+
+def node_index(ijk: torch.Tensor, geometry: GridGeometry) -> torch.Tensor:
+    """Linear node index of integer node coordinates (..., 3) in the block-major layout."""
+    by, bz = geometry.blocks[1], geometry.blocks[2]
+    i, j, k = ijk.unbind(-1)
+    block = ((i // BLOCK) * by + (j // BLOCK)) * bz + (k // BLOCK)
+    local = (i % BLOCK) * BLOCK * BLOCK + (j % BLOCK) * BLOCK + (k % BLOCK)
+    return block * BLOCK ** 3 + local
+
+
+def node_coords(geometry: GridGeometry, device: torch.device) -> torch.Tensor:
+    """Integer coordinates (nodes_per_grid, 3) of every node, in storage order."""
+    index = torch.arange(geometry.nodes_per_grid, device=device)
+    by, bz = geometry.blocks[1], geometry.blocks[2]
+    block, local = index // BLOCK ** 3, index % BLOCK ** 3
+    bk, bj, bi = block % bz, (block // bz) % by, block // (by * bz)
+    return torch.stack([bi * BLOCK + local // (BLOCK * BLOCK),
+                        bj * BLOCK + (local // BLOCK) % BLOCK,
+                        bk * BLOCK + local % BLOCK], -1)
+
+
+@dataclass
+class GridFields:
+    """Per-grid node fields, flattened: (n_grids, nodes) and (n_grids, nodes, 3)."""
+
+    mass: torch.Tensor
+    momentum: torch.Tensor
+    velocity: torch.Tensor
+    mass_gradient: torch.Tensor | None  # only when contact normals are needed
+
+    @staticmethod
+    def zeros(geometry: GridGeometry, device: torch.device, with_gradient: bool) -> "GridFields":
+        shape = (geometry.n_grids, geometry.nodes_per_grid)
+        return GridFields(
+            mass=torch.zeros(shape, device=device),
+            momentum=torch.zeros(shape + (3,), device=device),
+            velocity=torch.zeros(shape + (3,), device=device),
+            mass_gradient=torch.zeros(shape + (3,), device=device) if with_gradient else None)
+
+
+@dataclass
+class ParticleBins:
+    """Particles sorted by (grid, block) and the blocks the kernels must visit (int32 tensors)."""
+
+    order: torch.Tensor           # (N,) particle indices, stable-sorted by key
+    cell_start: torch.Tensor      # (P+1,) ranges of non-empty (grid, block) cells in order
+    cell_key: torch.Tensor        # (P,) grid * n_blocks + block
+    color_cells: torch.Tensor     # (P,) cells grouped by block parity colour
+    color_start: torch.Tensor     # (9,)
+    touched: torch.Tensor         # (T,) grid * n_blocks + block reached by some stencil, ascending
+    contact_blocks: torch.Tensor  # (Q,) block ids touched by two or more grids, ascending
+
+    def as_list(self) -> list[torch.Tensor]:
+        return [self.order, self.cell_start, self.cell_key, self.color_cells, self.color_start,
+                self.touched, self.contact_blocks]

@@ -1,0 +1,204 @@
+"""Readable, vectorised PyTorch twins of the MPM kernels (SPEC §5.2, §5.4, §5.5).
+
+Each function mirrors one compiled op in ``csrc/mpm`` and has the same inputs and outputs.
+They work on any device and run the whole dense grid, so they are slow but easy to check;
+the tests compare the compiled kernels against them.
+"""
+from __future__ import annotations
+
+import torch
+
+from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins, node_coords, node_index
+from fracture_gs.mpm.materials import constitutive_update_reference
+from fracture_gs.mpm.types import BLOCK
+
+# The 27 stencil offsets, in the order the kernels visit them (a, b, c nested).
+STENCIL = torch.tensor([[a, b, c] for a in range(3) for b in range(3) for c in range(3)])
+
+WALL_CONDITIONS = {"none": 0, "slip": 1, "sticky": 2, "separate": 3}
+
+
+def _bspline(x: torch.Tensor, geometry: GridGeometry):
+    """Base node (N,3), fraction f (N,3), weights w (N,3 nodes,3 axes), dw (same, per length)."""
+    lower = torch.tensor(geometry.lower, device=x.device, dtype=x.dtype)
+    X = (x - lower) / geometry.dx
+    base = torch.floor(X - 0.5)
+    f = X - base
+    w = torch.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], 1)
+    dw = torch.stack([-(1.5 - f), -2.0 * (f - 1.0), f - 0.5], 1) / geometry.dx
+    return base.long(), f, w, dw
+
+
+def _stencil(x: torch.Tensor, geometry: GridGeometry):
+    """Node indices (N,27), weights (N,27), weight gradients (N,27,3), offsets x_i - x_p (N,27,3)."""
+    base, f, w, dw = _bspline(x, geometry)
+    offsets = STENCIL.to(x.device)
+    axis = torch.arange(3, device=x.device)
+    w_axes = w[:, offsets, axis]      # (N,27,3): weight of each axis for each stencil node
+    dw_axes = dw[:, offsets, axis]
+    weight = w_axes.prod(-1)
+    gradient = torch.stack([dw_axes[..., 0] * w_axes[..., 1] * w_axes[..., 2],
+                            w_axes[..., 0] * dw_axes[..., 1] * w_axes[..., 2],
+                            w_axes[..., 0] * w_axes[..., 1] * dw_axes[..., 2]], -1)
+    dpos = (offsets[None].to(x.dtype) - f[:, None, :]) * geometry.dx
+    index = node_index(base[:, None, :] + offsets[None], geometry)
+    return index, weight, gradient, dpos
+
+
+def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry) -> ParticleBins:
+    """Sort particles by (grid, block) of their stencil base; list touched and contact blocks."""
+    device = x.device
+    base, _, _, _ = _bspline(x, geometry)
+    limit = torch.tensor([b * BLOCK - 3 for b in geometry.blocks], device=device)
+    inside = (base >= 0).all(1) & (base < limit).all(1) & torch.isfinite(x).all(1)
+    if not bool(inside.all()):
+        bad = int(torch.nonzero(~inside)[-1])
+        raise RuntimeError(f"particle {bad} is outside the grid (or has a non-finite position)")
+    by, bz = geometry.blocks[1], geometry.blocks[2]
+    block_ijk = base // BLOCK
+    block = (block_ijk[:, 0] * by + block_ijk[:, 1]) * bz + block_ijk[:, 2]
+    key = grid_id.long() * geometry.n_blocks + block
+    sorted_key, order = torch.sort(key, stable=True)
+    cell_key, counts = torch.unique_consecutive(sorted_key, return_counts=True)
+    cell_start = torch.zeros(len(cell_key) + 1, dtype=torch.long, device=device)
+    cell_start[1:] = torch.cumsum(counts, 0)
+    # Does some particle of the cell reach into the next block along each axis?
+    reach_particle = ((base % BLOCK) >= BLOCK - 2).long()
+    cell_of_particle = torch.repeat_interleave(torch.arange(len(cell_key), device=device), counts)
+    reach = torch.zeros(len(cell_key), 3, dtype=torch.long, device=device)
+    reach.scatter_reduce_(0, cell_of_particle[:, None].expand(-1, 3), reach_particle[order], "amax")
+    cell_grid, cell_block = cell_key // geometry.n_blocks, cell_key % geometry.n_blocks
+    bk, bj, bi = cell_block % bz, (cell_block // bz) % by, cell_block // (by * bz)
+    color = (bi % 2) * 4 + (bj % 2) * 2 + bk % 2
+    color_cells = torch.sort(color, stable=True)[1]
+    color_start = torch.zeros(9, dtype=torch.long, device=device)
+    color_start[1:] = torch.cumsum(torch.bincount(color, minlength=8), 0)
+    neighbours = STENCIL[(STENCIL < 2).all(1)].to(device)  # the 8 offsets in {0,1}^3
+    allowed = (neighbours[None] <= reach[:, None, :]).all(-1)  # (P,8)
+    nb_ijk = torch.stack([bi, bj, bk], -1)[:, None, :] + neighbours[None]
+    nb_key = cell_grid[:, None] * geometry.n_blocks + (nb_ijk[..., 0] * by + nb_ijk[..., 1]) * bz + nb_ijk[..., 2]
+    touched = torch.unique(nb_key[allowed])
+    if geometry.n_grids >= 2:
+        per_block = torch.bincount(touched % geometry.n_blocks, minlength=geometry.n_blocks)
+        contact_blocks = torch.nonzero(per_block >= 2).flatten()
+    else:
+        contact_blocks = torch.zeros(0, dtype=torch.long, device=device)
+    i32 = torch.int32
+    return ParticleBins(order.to(i32), cell_start.to(i32), cell_key.to(i32), color_cells.to(i32),
+                        color_start.to(i32), touched.to(i32), contact_blocks.to(i32))
+
+
+def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
+        rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
+        grid: GridFields) -> None:
+    """Scatter mass, APIC momentum + stress force and mass gradients onto each particle's grid."""
+    index, weight, gradient, dpos = _stencil(x, geometry)
+    index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
+    affine = mass[:, None, None] * C - (4.0 * dt / geometry.dx ** 2) * rest_volume[:, None, None] * stress
+    momentum = weight[..., None] * (mass[:, None, None] * v[:, None, :] + torch.einsum("nij,nkj->nki", affine, dpos))
+    grid.mass.zero_()
+    grid.momentum.zero_()
+    grid.mass.view(-1).index_add_(0, index.flatten(), (weight * mass[:, None]).flatten())
+    grid.momentum.view(-1, 3).index_add_(0, index.flatten(), momentum.reshape(-1, 3))
+    if grid.mass_gradient is not None:
+        grid.mass_gradient.zero_()
+        grid.mass_gradient.view(-1, 3).index_add_(0, index.flatten(),
+                                                  (gradient * mass[:, None, None]).reshape(-1, 3))
+
+
+def grid_update(grid: GridFields, dt: float, gravity: torch.Tensor, mass_eps: float) -> None:
+    """Velocity = momentum / mass + dt g on nodes with mass, zero elsewhere."""
+    has_mass = grid.mass > mass_eps
+    velocity = grid.momentum / torch.where(has_mass, grid.mass, torch.ones_like(grid.mass))[..., None]
+    velocity = velocity + dt * gravity.to(velocity)
+    grid.velocity.copy_(torch.where(has_mass[..., None], velocity, torch.zeros_like(velocity)))
+
+
+def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, ground_height: float | None,
+               ground_friction: float, mass_eps: float, wall_cells: int = 3) -> None:
+    """Domain walls (slip / sticky / separate) and the Coulomb-friction ground on every node."""
+    ijk = node_coords(geometry, grid.mass.device)
+    velocity = grid.velocity
+    new_v = velocity.clone()
+    if wall_condition != "none":
+        cells = torch.tensor(geometry.cells, device=ijk.device)
+        lower_wall, upper_wall = ijk < wall_cells, ijk > cells - wall_cells   # (nodes,3)
+        in_wall = lower_wall | upper_wall
+        if wall_condition == "sticky":
+            new_v = torch.where(in_wall.any(-1)[None, :, None], torch.zeros_like(new_v), new_v)
+        else:
+            for d in range(3):
+                component = new_v[..., d]
+                if wall_condition == "slip":
+                    zero = in_wall[:, d][None]
+                else:
+                    zero = (lower_wall[:, d][None] & (component < 0)) | (upper_wall[:, d][None] & (component > 0))
+                new_v[..., d] = torch.where(zero, torch.zeros_like(component), component)
+    if ground_height is not None:
+        z = geometry.lower[2] + ijk[:, 2].to(velocity.dtype) * geometry.dx
+        contact = (z <= ground_height)[None] & (new_v[..., 2] < 0)
+        speed_in = -new_v[..., 2]
+        tangential = new_v[..., :2]
+        vt = tangential.norm(dim=-1)
+        scale = torch.clamp(1.0 - ground_friction * speed_in / torch.where(vt > 0, vt, torch.ones_like(vt)), min=0.0)
+        scale = torch.where(vt > 0, scale, torch.ones_like(scale))
+        grounded = torch.cat([tangential * scale[..., None], torch.zeros_like(speed_in)[..., None]], -1)
+        new_v = torch.where(contact[..., None], grounded, new_v)
+    grid.velocity.copy_(torch.where((grid.mass > mass_eps)[..., None], new_v, velocity))
+
+
+def collision(grid: GridFields, strength: float, friction: float, mass_eps: float) -> None:
+    """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4)."""
+    assert grid.mass_gradient is not None, "collision needs mass gradients"
+    n_grids = grid.mass.shape[0]
+    for a in range(n_grids):
+        for b in range(a + 1, n_grids):
+            ma, mb = grid.mass[a], grid.mass[b]
+            va, vb = grid.velocity[a], grid.velocity[b]
+            ga, gb = grid.mass_gradient[a], grid.mass_gradient[b]
+            na, nb = ga.norm(dim=-1, keepdim=True), gb.norm(dim=-1, keepdim=True)
+            both = (ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
+            normal = ga / na.clamp_min(1e-30) - gb / nb.clamp_min(1e-30)
+            normal_len = normal.norm(dim=-1, keepdim=True)
+            normal = normal / normal_len.clamp_min(1e-30)
+            vrel = va - vb
+            vn = (vrel * normal).sum(-1, keepdim=True)
+            active = both & (normal_len[:, 0] > 1e-6) & (vn[:, 0] > 0)
+            reduced = (ma * mb / (ma + mb).clamp_min(1e-30))[:, None]
+            jn = reduced * vn
+            impulse = -strength * jn * normal
+            if friction > 0:
+                vt = vrel - vn * normal
+                vt_norm = vt.norm(dim=-1, keepdim=True)
+                jt = torch.minimum(friction * jn, reduced * vt_norm)
+                impulse = impulse - torch.where(vt_norm > 1e-12, jt * vt / vt_norm.clamp_min(1e-30),
+                                                torch.zeros_like(vt))
+            impulse = torch.where(active[:, None], impulse, torch.zeros_like(impulse))
+            grid.velocity[a] = va + impulse / torch.where(active, ma, torch.ones_like(ma))[:, None]
+            grid.velocity[b] = vb - impulse / torch.where(active, mb, torch.ones_like(mb))[:, None]
+
+
+def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor,
+        grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor,
+        grid_velocity: torch.Tensor, geometry: GridGeometry, dt: float,
+        clamp_lower: list[float], clamp_upper: list[float]):
+    """Gather velocity and APIC affine field, advect, update F and run the return map.
+
+    Returns (x, v, C, F_E, alpha, stress, fractured, clamped_count).
+    """
+    index, weight, _, dpos = _stencil(x, geometry)
+    index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
+    node_v = grid_velocity.reshape(-1, 3)[index]                     # (N,27,3)
+    v = (weight[..., None] * node_v).sum(1)
+    C = (4.0 / geometry.dx ** 2) * torch.einsum("nk,nki,nkj->nij", weight, node_v, dpos)
+    moved = x + dt * v
+    lo = torch.tensor(clamp_lower, device=x.device, dtype=x.dtype)
+    hi = torch.tensor(clamp_upper, device=x.device, dtype=x.dtype)
+    x_new = torch.minimum(torch.maximum(moved, lo), hi)
+    clamped = int((x_new != moved).any(1).sum())
+    eye = torch.eye(3, device=x.device, dtype=x.dtype)
+    F_trial = (eye + dt * C) @ F_E
+    F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha)
+    threshold = material_table[material_id.long(), 7]
+    fractured_new = fractured | (alpha_new >= threshold)
+    return x_new, v, C, F_new, alpha_new, stress, fractured_new, clamped

@@ -1,0 +1,428 @@
+"""Constitutive models: compiled kernels (csrc/common/constitutive.h) vs the torch twins, and
+the physical properties of the NACC return map (SPEC §5.3)."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from fracture_gs import _backend
+from fracture_gs.mpm import materials as mat
+from fracture_gs.mpm.materials import ElasticMaterial, MaterialTable, NACCMaterial
+
+compiled = _backend.compiled_module()
+needs_compiled = pytest.mark.skipif(compiled is None, reason="fracture_gs._C is not built")
+
+MATERIALS = [
+    ElasticMaterial(E=1.0e4, nu=0.3, density=1.0),
+    NACCMaterial(E=1.5e4, nu=0.39, density=1.0, alpha0=-0.01, beta=0.5, xi=1.0, M=2.36),
+    NACCMaterial(E=1.0e8, nu=0.39, density=1000.0, alpha0=-0.06, beta=2.0, xi=3.0, M=2.36),
+    NACCMaterial(E=5.0e5, nu=0.46, density=5.0, alpha0=0.05, beta=0.0, xi=1.0, M=1.2),
+    NACCMaterial(E=2.0e6, nu=0.2, density=3.0, alpha0=-0.4, beta=1.0, xi=2.0, M=2.0),
+]
+
+
+def random_rotations(n: int, generator: torch.Generator) -> torch.Tensor:
+    """Uniform-ish random proper rotations (N,3,3), float64."""
+    Q, R = torch.linalg.qr(torch.randn(n, 3, 3, generator=generator, dtype=torch.float64))
+    Q = Q * torch.sign(torch.diagonal(R, dim1=-2, dim2=-1)).unsqueeze(-2)
+    flip = torch.linalg.det(Q) < 0
+    Q[flip, :, 2] *= -1
+    return Q
+
+
+def random_deformations(n: int, seed: int, spread: float) -> torch.Tensor:
+    """F = R1 diag(exp(s)) R2ᵀ with log-stretches s ~ N(mean, spread), float32 (N,3,3)."""
+    generator = torch.Generator().manual_seed(seed)
+    stretch = torch.randn(n, 3, generator=generator, dtype=torch.float64) * spread
+    stretch += torch.randn(n, 1, generator=generator, dtype=torch.float64) * spread  # volume
+    R1, R2 = random_rotations(n, generator), random_rotations(n, generator)
+    return ((R1 * torch.exp(stretch).unsqueeze(-2)) @ R2.mT).float()
+
+
+def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """F_trial (mild and large deformations), alpha around each material's alpha0, material ids."""
+    generator = torch.Generator().manual_seed(seed + 1)
+    F = torch.cat([random_deformations(n // 3, seed, 0.003), random_deformations(n // 3, seed + 2, 0.03),
+                   random_deformations(n - 2 * (n // 3), seed + 3, 0.3)])
+    material_id = torch.randint(0, len(MATERIALS), (n,), generator=generator, dtype=torch.int32)
+    alpha0 = torch.tensor([m.alpha0 for m in MATERIALS], dtype=torch.float32)[material_id.long()]
+    alpha = alpha0 + 0.05 * torch.randn(n, generator=generator) * (material_id > 0)
+    return F, alpha, material_id
+
+
+def relative_error(value: torch.Tensor, reference: torch.Tensor, floor: float) -> float:
+    """Max over particles of |value − ref|_max / max(|ref|_max, floor)."""
+    value = value.double().reshape(value.shape[0], -1)
+    reference = reference.double().reshape(reference.shape[0], -1)
+    scale = reference.abs().amax(dim=1).clamp_min(floor)
+    return float(((value - reference).abs().amax(dim=1) / scale).max())
+
+
+def yield_function(strain: torch.Tensor, alpha: torch.Tensor, row: torch.Tensor) -> torch.Tensor:
+    """y = (1+2β) q² + M² (p + β p0)(p − p0) of principal strains, in units of K².
+
+    ``row`` is the material-table row (float32 parameters, used in float64 here).
+    """
+    mu, K, beta, xi, M = (row[mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    e = strain.sum(-1)
+    q = math.sqrt(1.5) * 2 * mu * (strain - e[:, None] / 3).norm(dim=-1)
+    p0 = K * (1e-5 + torch.sinh(xi * (-alpha).clamp_min(0)))
+    p = -K * e
+    return ((1 + 2 * beta) * q**2 + M**2 * (p + beta * p0) * (p - p0)) / K**2
+
+
+def principal_strain(F: torch.Tensor) -> torch.Tensor:
+    return torch.log(torch.linalg.svdvals(F.double()).clamp_min(1e-4))
+
+
+# ----------------------------------------------------------------------------- svd3
+
+@needs_compiled
+def test_svd3_is_accurate_on_hard_cases() -> None:
+    generator = torch.Generator().manual_seed(0)
+    n = 400
+    rotations = random_rotations(2 * n, generator)
+    cases = [
+        torch.randn(n, 3, 3, generator=generator, dtype=torch.float64),                  # generic
+        rotations[:n],                                                                     # rotations
+        torch.diag_embed(torch.randn(n, 3, generator=generator, dtype=torch.float64)),   # diagonal
+        torch.eye(3, dtype=torch.float64).expand(n, 3, 3)
+        + 1e-5 * torch.randn(n, 3, 3, generator=generator, dtype=torch.float64),         # ~repeated
+        (rotations[:n] * torch.tensor([1.0, 1e-3, 1e-7], dtype=torch.float64)) @ rotations[n:].mT,
+        (rotations[:n] * torch.tensor([2.0, 2.0 + 1e-6, 1e-6], dtype=torch.float64)) @ rotations[n:].mT,
+        torch.eye(3, dtype=torch.float64).expand(4, 3, 3) * torch.tensor([1.0, -1.0, 1e-3, 0.0],
+                                                                         dtype=torch.float64)[:, None, None],
+        torch.randn(n, 3, 1, generator=generator, dtype=torch.float64)
+        * torch.randn(n, 1, 3, generator=generator, dtype=torch.float64),                # rank 1
+        -rotations[n:],                                                                    # reflections
+    ]
+    F = torch.cat(cases).float()
+    U, sigma, V = compiled.svd3_batch(F)
+    U, sigma, V, F64 = U.double(), sigma.double(), V.double(), F.double()
+    scale = F64.flatten(1).abs().amax(dim=1).clamp_min(1e-30)
+    reconstruction = ((U * sigma.unsqueeze(-2)) @ V.mT - F64).flatten(1).abs().amax(dim=1) / scale
+    eye = torch.eye(3, dtype=torch.float64)
+    assert float(reconstruction.max()) < 2e-6
+    assert float((U.mT @ U - eye).abs().max()) < 2e-6
+    assert float((V.mT @ V - eye).abs().max()) < 2e-6
+    assert torch.allclose(torch.linalg.det(U), torch.ones(len(F), dtype=torch.float64), atol=1e-5)
+    assert torch.allclose(torch.linalg.det(V), torch.ones(len(F), dtype=torch.float64), atol=1e-5)
+    slack = 1e-6 * sigma[:, 0]  # ordering holds up to round-off (e.g. all sigma equal)
+    assert bool((sigma[:, 0] >= sigma[:, 1] - slack).all())
+    assert bool((sigma[:, 1] >= sigma[:, 2].abs() - slack).all())
+    det_sign = torch.sign(torch.linalg.det(F64))
+    assert bool((torch.sign(sigma[:, 2]) * det_sign >= 0).all())
+    reference = torch.linalg.svdvals(F64)
+    assert float(((sigma.abs() - reference).abs() / scale[:, None]).max()) < 1e-6
+    identity = compiled.svd3_batch(torch.eye(3).expand(1, 3, 3).contiguous())
+    assert torch.equal(identity[1], torch.ones(1, 3))
+
+
+@needs_compiled
+def test_torch_proper_svd_matches_sign_convention() -> None:
+    F = torch.cat([random_deformations(50, 3, 0.5).double(),
+                   -torch.eye(3, dtype=torch.float64).expand(2, 3, 3)])
+    U, sigma, V = mat.proper_svd(F)
+    assert torch.allclose(mat.compose(U, sigma, V), F, atol=1e-12)
+    assert torch.allclose(torch.linalg.det(U), torch.ones(len(F), dtype=torch.float64))
+    assert torch.allclose(torch.linalg.det(V), torch.ones(len(F), dtype=torch.float64))
+    _, sigma_cpp, _ = compiled.svd3_batch(F.float())
+    assert torch.allclose(sigma_cpp.double(), sigma, rtol=1e-5, atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- C++ vs torch
+
+@needs_compiled
+def test_compiled_update_matches_float64_reference() -> None:
+    F, alpha, material_id = mixed_batch(1500, seed=10)
+    table = MaterialTable(MATERIALS).table(F.device)
+    F_E, alpha_new, tau = compiled.constitutive_update(F, alpha, table, material_id)
+    F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(
+        table, material_id, F.double(), alpha.double())
+    # float32 kernel (double inside) vs float64 twin: only output rounding separates them.
+    assert relative_error(F_E, F_ref, 1.0) < 1e-5
+    assert float((alpha_new.double() - alpha_ref).abs().max()) < 1e-6
+    bulk = table[material_id.long(), mat.COLUMN["bulk"]].double()
+    tau_error = ((tau.double() - tau_ref).flatten(1).abs().amax(1)
+                 / torch.maximum(tau_ref.flatten(1).abs().amax(1), 1e-6 * bulk))
+    assert float(tau_error.max()) < 1e-5
+    # The batch exercises every branch of the return map.
+    parameters = (table[material_id.long(), mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    result = mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters)
+    nacc = material_id > 0
+    assert int((result.tip & nacc & (alpha_ref < alpha.double())).sum()) > 0     # compression tip
+    assert int((result.tip & nacc & (alpha_ref > alpha.double())).sum()) > 0     # tension tip
+    assert int((result.projected & ~result.tip & nacc).sum()) > 0                # ellipse
+    assert int((~result.projected & nacc).sum()) > 0                             # inside
+    assert torch.equal(F_E[~result.projected & nacc], F[~result.projected & nacc])
+
+
+@needs_compiled
+def test_compiled_energy_matches_reference() -> None:
+    F, _, material_id = mixed_batch(600, seed=20)
+    table = MaterialTable(MATERIALS).table(F.device)
+    psi = compiled.elastic_energy(F, table, material_id)
+    psi_ref = mat.elastic_energy_reference(table, material_id, F.double())
+    assert float(((psi.double() - psi_ref).abs() / psi_ref.abs().clamp_min(1e-3)).max()) < 1e-4
+
+
+@needs_compiled
+def test_backend_dispatch_agrees_and_rejects_bad_ids() -> None:
+    F, alpha, material_id = mixed_batch(90, seed=30)
+    table = MaterialTable(MATERIALS).table(F.device)
+    out_cpp = mat.constitutive_update(F, alpha, table, material_id, backend="cpp")
+    out_ref = mat.constitutive_update(F, alpha, table, material_id, backend="reference")
+    assert out_ref[0].dtype == torch.float32 and out_ref[1].dtype == torch.float32
+    assert relative_error(out_cpp[0], out_ref[0], 1.0) < 1e-4
+    assert float((out_cpp[1] - out_ref[1]).abs().max()) < 1e-4
+    bad = material_id.clone()
+    bad[5] = len(MATERIALS)
+    for backend in ("cpp", "reference"):
+        with pytest.raises(ValueError, match="material_id"):
+            mat.constitutive_update(F, alpha, table, bad, backend=backend)
+
+
+@needs_compiled
+def test_unknown_model_gives_nan_and_bad_inputs_are_rejected() -> None:
+    F, alpha, _ = mixed_batch(6, seed=31)
+    table = MaterialTable(MATERIALS[:2]).table()
+    table[1, mat.COLUMN["model"]] = 7.0
+    ids = torch.tensor([0, 1, 0, 1, 0, 1], dtype=torch.int32)
+    for F_E, alpha_new, tau in (compiled.constitutive_update(F, alpha, table, ids),
+                                mat.constitutive_update_reference(table, ids, F, alpha)):
+        unknown = ids == 1
+        assert bool(F_E[unknown].isnan().all() and alpha_new[unknown].isnan().all()
+                    and tau[unknown].isnan().all())
+        assert bool(torch.isfinite(tau[~unknown]).all())
+    with pytest.raises(TypeError, match="F_trial"):
+        compiled.constitutive_update(F.double(), alpha, table, ids)
+    with pytest.raises(ValueError, match="material_table"):
+        compiled.constitutive_update(F, alpha, table[:, :7], ids)
+    # Non-contiguous inputs are accepted.
+    F_t = F.transpose(1, 2)
+    out = compiled.constitutive_update(F_t, alpha, MaterialTable(MATERIALS).table(), ids)
+    ref = compiled.constitutive_update(F_t.contiguous(), alpha, MaterialTable(MATERIALS).table(), ids)
+    assert all(torch.equal(a, b) for a, b in zip(out, ref))
+
+
+def test_material_methods_match_table_reference() -> None:
+    F = random_deformations(200, 40, 0.2).double()
+    for index, material in enumerate(MATERIALS):
+        alpha = torch.full((200,), material.alpha0, dtype=torch.float64)
+        ids = torch.full((200,), index, dtype=torch.int32)
+        F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(MATERIALS, ids, F, alpha)
+        F_E, alpha_new = material.return_map(F, alpha)
+        # The table holds float32 parameters, the material float64 ones: agree to ~1e-7.
+        assert torch.allclose(F_E, F_ref, rtol=1e-6, atol=1e-6)
+        assert torch.allclose(alpha_new, alpha_ref, rtol=1e-6, atol=1e-6)
+        assert torch.allclose(material.kirchhoff_stress(F_E), tau_ref, rtol=1e-5,
+                              atol=1e-6 * material.bulk)
+        assert torch.allclose(material.energy_density(F_E),
+                              mat.elastic_energy_reference(MATERIALS, ids, F_E), rtol=1e-5)
+
+
+# ----------------------------------------------------------------------------- return-map physics
+
+@needs_compiled
+@pytest.mark.parametrize("backend", ["cpp", "reference"])
+def test_inside_yield_surface_is_unchanged(backend: str) -> None:
+    strong = NACCMaterial(E=1e6, nu=0.3, density=1.0, alpha0=-0.5, beta=1.0, xi=2.0, M=2.36)
+    F = random_deformations(300, 50, 0.002)
+    alpha = torch.full((300,), strong.alpha0)
+    ids = torch.zeros(300, dtype=torch.int32)
+    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, MaterialTable([strong]).table(), ids,
+                                                  backend=backend)
+    assert torch.equal(F_E, F) and torch.equal(alpha_new, alpha)
+    assert torch.allclose(tau, strong.kirchhoff_stress(F.double()).float(), rtol=1e-4,
+                          atol=1e-6 * strong.bulk)
+
+
+def strains_around_yield_surface(material: NACCMaterial, n: int, seed: int) -> torch.Tensor:
+    """Principal strains with p inside (-β p0, p0) and deviatoric parts up to ~3x the yield q."""
+    generator = torch.Generator().manual_seed(seed)
+    p0_over_K = 1e-5 + math.sinh(material.xi * max(-material.alpha0, 0.0))
+    u = torch.rand(n, generator=generator, dtype=torch.float64)
+    e = -0.9 * p0_over_K + u * 0.9 * (1 + material.beta) * p0_over_K
+    direction = torch.randn(n, 3, generator=generator, dtype=torch.float64)
+    direction -= direction.mean(dim=1, keepdim=True)
+    direction /= direction.norm(dim=1, keepdim=True)
+    q_scale = material.M * p0_over_K * material.bulk / (math.sqrt(1.5) * 2 * material.mu)
+    magnitude = 3 * q_scale * torch.rand(n, 1, generator=generator, dtype=torch.float64)
+    return e[:, None] / 3 + magnitude * direction
+
+
+@needs_compiled
+def test_projection_lands_on_yield_surface_and_keeps_volume() -> None:
+    # (The cohesionless MATERIALS[3] is left out: with p0 at its floor 1e-5 K the whole ellipse
+    # lies below the tolerance y = 1e-8 K^2, so it only ever projects to the tips.)
+    for index, material in enumerate(MATERIALS[1:3] + MATERIALS[4:]):
+        n = 400
+        generator = torch.Generator().manual_seed(100 + index)
+        strain = strains_around_yield_surface(material, n, seed=index)
+        R1, R2 = random_rotations(n, generator), random_rotations(n, generator)
+        F = ((R1 * torch.exp(strain).unsqueeze(-2)) @ R2.mT).float()
+        alpha = torch.full((n,), material.alpha0)
+        ids = torch.zeros(n, dtype=torch.int32)
+        table = MaterialTable([material]).table()
+        F_E, alpha_new, _ = compiled.constitutive_update(F, alpha, table, ids)
+        F_ref, alpha_ref, _ = mat.constitutive_update_reference(table, ids, F.double(), alpha.double())
+        parameters = (table[0, mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+        result = mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters)
+        ellipse = result.projected & ~result.tip
+        assert int(ellipse.sum()) > n // 10 and int((~result.projected).sum()) > n // 10
+        # Every returned state lies inside the yield surface the projection used (old alpha):
+        # up to tol = 1e-8 K^2 for the float64 twin, to float32 rounding of F_E for the kernel.
+        assert float(yield_function(result.strain, alpha.double(), table[0]).max()) <= 1e-8
+        assert float(yield_function(principal_strain(F_ref), alpha.double(), table[0]).max()) <= 1e-8
+        assert float(yield_function(principal_strain(F_E), alpha.double(), table[0]).max()) <= 1e-6
+        # The non-tip projection preserves det F (Hencky volumetric strain unchanged).
+        det_ratio = torch.linalg.det(F_E[ellipse].double()) / torch.linalg.det(F[ellipse].double())
+        assert float((det_ratio - 1).abs().max()) < 1e-5
+        assert torch.equal(F_E[~result.projected], F[~result.projected])
+        assert torch.allclose(alpha_new.double(), alpha_ref, atol=1e-6)
+
+
+@needs_compiled
+@pytest.mark.parametrize("backend", ["cpp", "reference"])
+def test_alpha_grows_in_tension_and_falls_under_compression(backend: str) -> None:
+    soil = NACCMaterial(E=1e5, nu=0.3, density=1.0, alpha0=-0.1, beta=0.5, xi=2.0, M=1.0)
+    table = MaterialTable([soil]).table()
+    eye = torch.eye(3)
+    shear = torch.tensor([[0.0, 0.2, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    F = torch.stack([1.2 * eye,                       # hydrostatic tension -> tension tip
+                     0.8 * eye,                       # hydrostatic compression -> compression tip
+                     0.95 * eye + shear,              # compression + shear: p > p_centre
+                     0.999 * eye + shear])            # shear, little compression: p < p_centre
+    alpha = torch.full((4,), soil.alpha0)
+    ids = torch.zeros(4, dtype=torch.int32)
+    F_E, alpha_new, _ = mat.constitutive_update(F, alpha, table, ids, backend=backend)
+    K, beta = soil.bulk, soil.beta
+    p0 = K * (1e-5 + math.sinh(soil.xi * 0.1))
+    # Tension tip: F_E isotropic with e' = beta p0 / K, alpha += e - e'.
+    expected_tension = soil.alpha0 + 3 * math.log(1.2) - beta * p0 / K
+    assert alpha_new[0].item() == pytest.approx(expected_tension, rel=1e-5)
+    assert torch.allclose(F_E[0], math.exp(beta * p0 / K / 3) * eye, atol=1e-6)
+    # Compression tip: e' = -p0 / K, alpha falls.
+    expected_compression = soil.alpha0 + 3 * math.log(0.8) + p0 / K
+    assert alpha_new[1].item() == pytest.approx(expected_compression, rel=1e-5)
+    assert alpha_new[1].item() < soil.alpha0
+    # Ellipse: CD-MPM hardening moves p toward the centre p_c = (1-beta) p0 / 2, so alpha
+    # falls (hardens) on the compression side of the centre and rises (softens) below it.
+    assert alpha_new[2].item() < soil.alpha0
+    assert alpha_new[3].item() > soil.alpha0
+    for row in (2, 3):
+        assert torch.linalg.det(F_E[row]).item() == pytest.approx(torch.linalg.det(F[row]).item(), rel=1e-5)
+    assert alpha_new[0].item() > soil.alpha0
+
+
+@needs_compiled
+@pytest.mark.parametrize("backend", ["cpp", "reference"])
+def test_cohesionless_material_fails_in_tension(backend: str) -> None:
+    """alpha >= 0 leaves p0 at its floor 1e-5 K: tiny tension sends F to the tension tip."""
+    sand = NACCMaterial(E=1e5, nu=0.3, density=1.0, alpha0=0.0, beta=0.5, xi=2.0, M=1.0)
+    F = (1.001 * torch.eye(3)).expand(1, 3, 3).contiguous()
+    F_E, alpha_new, tau = mat.constitutive_update(F, torch.zeros(1), MaterialTable([sand]).table(),
+                                                  torch.zeros(1, dtype=torch.int32), backend=backend)
+    e_tip = 0.5 * 1e-5
+    assert alpha_new.item() == pytest.approx(3 * math.log(1.001) - e_tip, rel=1e-4)
+    assert torch.allclose(F_E[0], math.exp(e_tip / 3) * torch.eye(3), atol=1e-7)
+    assert float(tau.abs().max()) < 1e-4 * sand.bulk
+
+
+@needs_compiled
+@pytest.mark.parametrize("backend", ["cpp", "reference"])
+def test_elastic_model_never_changes_F_or_alpha(backend: str) -> None:
+    F = torch.cat([random_deformations(200, 70, 0.6), -torch.eye(3).expand(1, 3, 3)])
+    alpha = torch.randn(201, generator=torch.Generator().manual_seed(1))
+    ids = torch.zeros(201, dtype=torch.int32)
+    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, MaterialTable(MATERIALS[:1]).table(), ids,
+                                                  backend=backend)
+    assert torch.equal(F_E, F) and torch.equal(alpha_new, alpha)
+    assert bool(torch.isfinite(tau).all())
+
+
+# ----------------------------------------------------------------------------- stress = dψ/dF Fᵀ
+
+def finite_difference_kirchhoff(material: mat.Material, F: torch.Tensor, step: float = 1e-6
+                                ) -> torch.Tensor:
+    """(∂ψ/∂F) Fᵀ by central differences of the float64 energy density."""
+    gradient = torch.zeros_like(F)
+    for i in range(3):
+        for j in range(3):
+            delta = torch.zeros(3, 3, dtype=F.dtype)
+            delta[i, j] = step
+            gradient[:, i, j] = (material.energy_density(F + delta)
+                                 - material.energy_density(F - delta)) / (2 * step)
+    return gradient @ F.mT
+
+
+@needs_compiled
+def test_kirchhoff_stress_is_energy_derivative() -> None:
+    materials = [ElasticMaterial(E=1e4, nu=0.3, density=1.0), ElasticMaterial(E=3e6, nu=0.45, density=2.0)]
+    inverted = torch.diag(torch.tensor([1.1, 0.9, -0.8])).unsqueeze(0)
+    F = torch.cat([random_deformations(15, 80, 0.2), inverted]).double()
+    for index, material in enumerate(materials):
+        tau_fd = finite_difference_kirchhoff(material, F)
+        tolerance = 1e-6 * material.bulk
+        assert float((material.kirchhoff_stress(F) - tau_fd).abs().max()) < tolerance
+        ids = torch.full((len(F),), index, dtype=torch.int32)
+        _, _, tau_cpp = compiled.constitutive_update(F.float(), torch.zeros(len(F)),
+                                                     MaterialTable(materials).table(), ids)
+        assert float((tau_cpp.double() - tau_fd).abs().max()) < 1e-5 * material.bulk
+
+
+def test_friction_angle_to_M() -> None:
+    for phi in (10.0, 30.0, 45.0):
+        s = math.sin(math.radians(phi))
+        assert mat.friction_angle_to_M(phi) == pytest.approx(6 * s / (3 - s), rel=1e-12)
+    assert mat.friction_angle_to_M(30.0) == pytest.approx(1.2)
+    sand = NACCMaterial.from_friction_angle(1e5, 0.3, 1.0, alpha0=-0.01, beta=0.5, xi=1.0,
+                                            friction_angle=30.0)
+    assert sand.M == pytest.approx(1.2)
+    with pytest.raises(ValueError, match="friction_angle"):
+        mat.friction_angle_to_M(95.0)
+
+
+def test_from_jp0_and_parameters() -> None:
+    material = NACCMaterial.from_jp0(1e5, 0.25, 2.0, Jp0=0.95, beta=0.5, xi=1.0, M=2.36)
+    assert material.alpha0 == pytest.approx(math.log(0.95))
+    mu, lam = material.mu, material.lam
+    assert mu == pytest.approx(1e5 / 2.5) and lam == pytest.approx(1e5 * 0.25 / (1.25 * 0.5))
+    assert material.bulk == pytest.approx(lam + 2 * mu / 3)
+    assert material.wave_speed == pytest.approx(math.sqrt((lam + 2 * mu) / 2.0))
+    with pytest.raises(ValueError, match="Jp0"):
+        NACCMaterial.from_jp0(1e5, 0.25, 2.0, Jp0=0.0, beta=0.5, xi=1.0, M=2.36)
+
+
+def test_material_table_layout() -> None:
+    table = MaterialTable(MATERIALS)
+    tensor = table.table(torch.device("cpu"))
+    assert tensor.shape == (len(MATERIALS), 8) and tensor.dtype == torch.float32
+    assert tensor[:, 0].tolist() == [0.0, 1.0, 1.0, 1.0, 1.0]
+    nacc = MATERIALS[2]
+    expected = [1.0, nacc.mu, nacc.lam, nacc.bulk, nacc.beta, nacc.xi, nacc.M, nacc.alpha_threshold]
+    assert torch.allclose(tensor[2], torch.tensor(expected, dtype=torch.float32))
+    assert math.isinf(tensor[0, 7].item())  # elastic particles are never flagged as fractured
+    assert table.max_wave_speed == pytest.approx(max(m.wave_speed for m in MATERIALS))
+    ids = torch.tensor([0, 2, 4], dtype=torch.int32)
+    assert torch.allclose(table.initial_alpha(ids), torch.tensor([0.0, -0.06, -0.4]))
+    with pytest.raises(ValueError, match="empty"):
+        MaterialTable([])
+
+
+@pytest.mark.parametrize("field, kwargs", [
+    ("E", dict(E=0.0)), ("E", dict(E=-1.0)), ("nu", dict(nu=0.5)), ("nu", dict(nu=-0.1)),
+    ("density", dict(density=0.0)), ("beta", dict(beta=-0.1)), ("xi", dict(xi=-1.0)),
+    ("M", dict(M=0.0)), ("alpha0", dict(alpha0=math.nan)),
+])
+def test_invalid_parameters_name_the_field(field: str, kwargs: dict) -> None:
+    params = dict(E=1e5, nu=0.3, density=1.0, alpha0=-0.01, beta=0.5, xi=1.0, M=2.36)
+    params.update(kwargs)
+    with pytest.raises(ValueError, match=rf"NACCMaterial\.{field}:"):
+        NACCMaterial(**params)
+    if field in ("E", "nu", "density"):
+        elastic = {k: params[k] for k in ("E", "nu", "density")}
+        with pytest.raises(ValueError, match=rf"ElasticMaterial\.{field}:"):
+            ElasticMaterial(**elastic)
