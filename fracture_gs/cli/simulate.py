@@ -7,7 +7,6 @@ valid and ``--resume``-able), 130 when interrupted.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from collections.abc import Mapping, Sequence

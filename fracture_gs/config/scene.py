@@ -53,7 +53,7 @@ DEFAULT_GROUND_FRICTION = 0.5
 
 
 class SceneError(ValueError):
-    """An invalid scene: ``key_path`` names the offending key (or the file), ``problem`` says why."""
+    """An invalid scene: ``key_path`` names the bad key (or the file), ``problem`` says why."""
 
     def __init__(self, key_path: str, problem: str) -> None:
         self.key_path = key_path
