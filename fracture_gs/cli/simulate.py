@@ -168,15 +168,54 @@ def _print_summary(summary: RunSummary, stream: TextIO) -> None:
     print("\n".join(lines), file=stream)
 
 
+def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, solver: Any,
+              resume: bool) -> int:
+    """Start a fresh output folder (frame 0) or restore the checkpoint; returns the last
+    complete frame."""
+    if not resume:
+        output.start(config.to_dict(), built.particles)
+        row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
+        output.write_frame(0, solver.state, row, solver.state_dict())
+        return 0
+    output.remove_temporaries()
+    checkpoint = output.load_checkpoint()
+    solver.load_state_dict(checkpoint.solver_state)
+    output.write_scene(config.to_dict())
+    if not output.frame_path(checkpoint.frame).exists():  # killed between checkpoint and frame
+        output.write_frame(checkpoint.frame, solver.state, checkpoint.rows[-1],
+                           solver.state_dict())
+    return checkpoint.frame
+
+
+def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int,
+               wall: float, clamped: int) -> RunSummary:
+    """Summary numbers from the diagnostics rows of frames 0..done."""
+    rows = np.asarray(output.rows, dtype=np.float64)
+    col = {name: rows[:, i] for i, name in enumerate(output.columns)}
+    p0 = np.array([col["px"][0], col["py"][0], col["pz"][0]])
+    p1 = np.array([col["px"][-1], col["py"][-1], col["pz"][-1]])
+    start = load_frame(output.frame_path(0))
+    with np.load(output.particles_path) as constant:
+        scale = float(np.sum(constant["mass"].astype(np.float64) *
+                             np.linalg.norm(start["v"].astype(np.float64), axis=1)))
+    steps, dts = col["steps"][1:], col["dt_min"][1:]
+    return RunSummary(
+        out_dir=output.root, first_frame=min(first, done), last_frame=done,
+        steps=int(steps.sum()), dt_min=float(np.nanmin(dts)) if dts.size else float("nan"),
+        wall_time=wall, momentum_drift=float(np.linalg.norm(p1 - p0)), momentum_scale=scale,
+        energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
+        fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped)
+
+
 def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.device,
                    backend: str = "auto", resume: bool = False, progress: bool | None = None,
                    log: TextIO | None = None) -> RunSummary:
-    """Build the scene, write the output folder and advance ``config.frames`` frames.
+    """Build the scene, write the output folder and advance up to ``config.frames`` frames.
 
     Raises :class:`SceneError` / :class:`InvalidInput` for invalid input (before anything is
-    simulated or written) and
-    :class:`SimulationBlowUp` (message naming the frame and time) when the run fails; in
-    that case the frames already written, the CSV, the plot and the checkpoint are valid.
+    simulated or written) and :class:`SimulationBlowUp` (message naming the frame and time)
+    when the run fails; the frames already written, the CSV, the plot and the checkpoint then
+    stay valid. ``progress=None`` shows the tqdm bar only on a terminal.
     """
     from tqdm import tqdm
 
@@ -187,20 +226,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
         check_resumable(output, config, built)
     check_backend(device, backend)
     solver = create_solver(built, device, backend)
-
-    if resume:
-        output.remove_temporaries()
-        checkpoint = output.load_checkpoint()
-        solver.load_state_dict(checkpoint.solver_state)
-        output.write_scene(config.to_dict())
-        done = checkpoint.frame
-        if not output.frame_path(done).exists():  # killed between checkpoint and frame
-            output.write_frame(done, solver.state, checkpoint.rows[-1], solver.state_dict())
-    else:
-        output.start(config.to_dict(), built.particles)
-        row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
-        output.write_frame(0, solver.state, row, solver.state_dict())
-        done = 0
+    done = _open_run(config, built, output, solver, resume)
 
     first = done + 1
     if first > config.frames:
@@ -233,24 +259,8 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     finally:
         bar.close()
         output.write_plot()
-    wall = time.perf_counter() - started
-
-    rows = np.asarray(output.rows, dtype=np.float64)
-    col = {name: rows[:, i] for i, name in enumerate(output.columns)}
-    p0 = np.array([col["px"][0], col["py"][0], col["pz"][0]])
-    p1 = np.array([col["px"][-1], col["py"][-1], col["pz"][-1]])
-    rest = load_frame(output.frame_path(0))
-    with np.load(output.particles_path) as constant:
-        scale = float(np.sum(constant["mass"].astype(np.float64) *
-                             np.linalg.norm(rest["v"].astype(np.float64), axis=1)))
-    steps = col["steps"][1:]
-    dts = col["dt_min"][1:]
-    summary = RunSummary(
-        out_dir=output.root, first_frame=min(first, done), last_frame=done,
-        steps=int(steps.sum()), dt_min=float(np.nanmin(dts)) if dts.size else float("nan"),
-        wall_time=wall, momentum_drift=float(np.linalg.norm(p1 - p0)), momentum_scale=scale,
-        energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
-        fractured=int(col["fractured"][-1]), particles=len(built.particles), clamped=clamped)
+    summary = _summarise(output, len(built.particles), first, done,
+                         time.perf_counter() - started, clamped)
     _print_summary(summary, log)
     return summary
 
