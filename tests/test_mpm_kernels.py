@@ -52,10 +52,16 @@ def double(t: torch.Tensor) -> torch.Tensor:
     return t.double() if t.is_floating_point() else t
 
 
-def grids(geometry: GridGeometry, dtype=torch.float32, with_gradient=True) -> GridFields:
-    fields = GridFields.zeros(geometry, torch.device("cpu"), with_gradient)
-    return GridFields(*(f.to(dtype) if f is not None else None for f in
-                        (fields.mass, fields.momentum, fields.velocity, fields.mass_gradient)))
+FIELDS = ("mass", "momentum", "velocity", "mass_gradient", "volume")
+
+
+def grids(geometry: GridGeometry, dtype=torch.float32, with_contact=True) -> GridFields:
+    fields = GridFields.zeros(geometry, torch.device("cpu"), with_contact)
+    return GridFields(*(getattr(fields, f).to(dtype) if getattr(fields, f) is not None else None for f in FIELDS))
+
+
+def double_copy(fields: GridFields) -> GridFields:
+    return GridFields(*(getattr(fields, f).double().clone() for f in FIELDS))
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -91,8 +97,10 @@ def test_p2g_and_grid_update_match_reference(seed):
     assert rel_err(compiled.mass, twin.mass) < REL_TOL
     assert rel_err(compiled.momentum, twin.momentum) < REL_TOL
     assert rel_err(compiled.mass_gradient, twin.mass_gradient) < REL_TOL
-    # Mass is conserved by the transfer.
+    assert rel_err(compiled.volume, twin.volume) < REL_TOL
+    # Mass and volume are conserved by the transfer (partition of unity).
     assert math.isclose(float(twin.mass.sum()), float(p["mass"].double().sum()), rel_tol=1e-10)
+    assert math.isclose(float(twin.volume.sum()), float(p["rest_volume"].double().sum()), rel_tol=1e-10)
 
     gravity = (0.3, -1.0, -9.8)
     eps = 1e-12
@@ -121,11 +129,12 @@ def contact_grids(seed: int, geometry: GridGeometry):
 def test_collision_matches_reference_and_conserves_momentum(friction, n_grids):
     geometry, _, _ = random_setup(0, n_grids=n_grids)
     bins, compiled = contact_grids(n_grids, geometry)
-    twin = GridFields(*(f.double().clone() for f in (compiled.mass, compiled.momentum, compiled.velocity,
-                                                      compiled.mass_gradient)))
+    twin = double_copy(compiled)
     before = (compiled.mass.double()[..., None] * compiled.velocity.double()).sum((0, 1))
-    ops.collision(bins, geometry, 1.0, friction, 1e-12, compiled, backend="cpp")
-    reference.collision(twin, 1.0, friction, 1e-12)
+    # Half the contact nodes pass the volume check with this threshold.
+    min_volume = float((compiled.volume[0] + compiled.volume[1])[(compiled.mass[:2] > 1e-12).all(0)].median())
+    ops.collision(bins, geometry, 1.0, friction, 1e-12, min_volume, compiled, backend="cpp")
+    reference.collision(twin, 1.0, friction, 1e-12, min_volume)
     changed = (twin.velocity != compiled.velocity.double()).any(-1)
     assert bool(changed.any()), "the test setup must produce contacts"
     assert rel_err(compiled.velocity, twin.velocity) < REL_TOL
@@ -139,8 +148,7 @@ def test_collision_matches_reference_and_conserves_momentum(friction, n_grids):
 def test_boundaries_match_reference(wall, ground):
     geometry, _, _ = random_setup(1, n_grids=2)
     bins, compiled = contact_grids(1, geometry)
-    twin = GridFields(*(f.double().clone() for f in (compiled.mass, compiled.momentum, compiled.velocity,
-                                                      compiled.mass_gradient)))
+    twin = double_copy(compiled)
     ops.boundaries(bins, geometry, wall, ground, 0.5, 1e-12, compiled, backend="cpp")
     reference.boundaries(twin, geometry, wall, ground, 0.5, 1e-12)
     assert rel_err(compiled.velocity, twin.velocity) < REL_TOL

@@ -96,7 +96,8 @@ def sliding_scene(mode: str) -> tuple[CollisionMPM, int]:
     domain = Domain((0, 0, 0), (1, 1, 1), 32)
     spacing = domain.dx / 2
     lower = lattice_box((0.5, 0.5, 0.4), (0.5, 0.3, 0.1), spacing)
-    upper = lattice_box((0.35, 0.5, 0.4 + 0.05 + 0.05 + spacing), (0.15, 0.15, 0.1), spacing)
+    # The surfaces touch: the upper block's bottom face lies on the lower block's top face.
+    upper = lattice_box((0.35, 0.5, 0.4 + 0.05 + 0.05), (0.15, 0.15, 0.1), spacing)
     bodies = [LatticeBody(lower, (0, 0, 0), 0, spacing), LatticeBody(upper, (1.0, 0, 0), 0, spacing)]
     solver = CollisionMPM(particle_set(bodies, [SOFT.density]), [SOFT], domain,
                           contact=ContactSettings(mode=mode, friction=0.0), boundaries=[], gravity=(0, 0, 0))
@@ -147,7 +148,7 @@ def drop_scene(alpha0: float, grid: int = 48) -> tuple[CollisionMPM, float]:
     spacing = domain.dx / 2
     block = lattice_box((0.5, 0.5, 0.2), (0.2, 0.2, 0.1), spacing)
     material = NACCMaterial(E=1.0e5, nu=0.3, density=1.0e3, alpha0=alpha0, beta=0.3, xi=1.0, M=2.36)
-    solver = CollisionMPM(particle_set([LatticeBody(block, (0, 0, -6.0), 0, spacing)], [material.density]),
+    solver = CollisionMPM(particle_set([LatticeBody(block, (0, 0, -3.5), 0, spacing)], [material.density]),
                           [material], domain, contact=ContactSettings(), gravity=(0, 0, -9.8),
                           boundaries=[GroundBoundary(height=0.1, friction=0.3)])
     return solver, spacing

@@ -109,6 +109,24 @@ HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb
   return true;
 }
 
+// Contact pass at one node for every pair of object grids, in a fixed order (a < b).
+// node: index within one grid; nodes: nodes per grid. Pairs whose nodal volumes do not fill at
+// least min_volume are not in contact yet (they are only within the kernel's reach).
+HOST_DEVICE inline void contact_node(long long node, long long nodes, int n_grids, const float* mass,
+                                     float* velocity, const float* mass_gradient, const float* volume,
+                                     float strength, float friction, float mass_eps, float min_volume) {
+  for (int a = 0; a < n_grids; ++a) {
+    const long long ia = a * nodes + node;
+    if (!(mass[ia] > mass_eps)) continue;
+    for (int b = a + 1; b < n_grids; ++b) {
+      const long long ib = b * nodes + node;
+      if (!(mass[ib] > mass_eps) || volume[ia] + volume[ib] < min_volume) continue;
+      contact_impulse(mass[ia], mass[ib], velocity + 3 * ia, velocity + 3 * ib, mass_gradient + 3 * ia,
+                      mass_gradient + 3 * ib, strength, friction);
+    }
+  }
+}
+
 // Boundary settings shared by the kernels (SPEC §5.5).
 enum WallCondition { kWallNone = 0, kWallSlip = 1, kWallSticky = 2, kWallSeparate = 3 };
 

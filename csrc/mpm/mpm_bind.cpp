@@ -48,12 +48,13 @@ Tensor to_tensor(const std::vector<int32_t>& values) {
 }
 
 GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor& velocity,
-                       const std::optional<Tensor>& mass_gradient) {
+                       const std::optional<Tensor>& mass_gradient, const std::optional<Tensor>& volume) {
   GridArrays g;
   g.mass = mass.defined() ? mass.data_ptr<float>() : nullptr;
   g.momentum = momentum.defined() ? momentum.data_ptr<float>() : nullptr;
   g.velocity = velocity.defined() ? velocity.data_ptr<float>() : nullptr;
   g.mass_gradient = (mass_gradient.has_value() && mass_gradient->defined()) ? mass_gradient->data_ptr<float>() : nullptr;
+  g.volume = (volume.has_value() && volume->defined()) ? volume->data_ptr<float>() : nullptr;
   return g;
 }
 
@@ -80,7 +81,7 @@ std::vector<Tensor> bin_particles(const Tensor& x, const Tensor& grid_id, const 
 void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, const Tensor& C, const Tensor& stress,
          const Tensor& mass, const Tensor& rest_volume, const Tensor& grid_id, const std::vector<double>& lower,
          double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt, Tensor grid_mass,
-         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient) {
+         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_volume) {
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
@@ -97,10 +98,11 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   check_grid(grid_mass, "grid_mass", 1, geo, x);
   check_grid(grid_momentum, "grid_momentum", 3, geo, x);
   if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
+  if (grid_volume) check_grid(*grid_volume, "grid_volume", 1, geo, x);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, b);
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>()};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient);
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_volume);
   Tensor color_start = bins[4].to(torch::kCPU);
   for (const auto& t : bins) TORCH_CHECK(t.device() == x.device(), "bins must be on the particles' device");
   BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
@@ -127,7 +129,7 @@ void grid_update(const Tensor& touched, const std::vector<double>& lower, double
   check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
   TORCH_CHECK(gravity.size() == 3, "gravity must have 3 entries");
   const float g[3] = {(float)gravity[0], (float)gravity[1], (float)gravity[2]};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, std::nullopt);
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, std::nullopt, std::nullopt);
   if (grid_mass.device().is_cpu()) {
     grid_update_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid);
     return;
@@ -165,7 +167,7 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
   check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
   const BoundaryParams bc = make_boundary(wall_condition, wall_cells, cells, has_ground, ground_height,
                                           ground_friction, lower[2], dx);
-  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, std::nullopt);
+  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, std::nullopt, std::nullopt);
   if (grid_mass.device().is_cpu()) {
     boundaries_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid);
     return;
@@ -180,21 +182,23 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
 
 void collision(const Tensor& contact_blocks, const std::vector<double>& lower, double dx,
                const std::vector<int64_t>& blocks, int64_t n_grids, double strength, double friction, double mass_eps,
-               Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient) {
+               double min_volume, Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient,
+               Tensor grid_volume) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(contact_blocks, "contact_blocks", torch::kInt32, grid_mass);
   check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
   check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
   check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
-  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient);
+  check_grid(grid_volume, "grid_volume", 1, geo, grid_mass);
+  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient, grid_volume);
   if (grid_mass.device().is_cpu()) {
     collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
-                  (float)friction, (float)mass_eps, grid);
+                  (float)friction, (float)mass_eps, (float)min_volume, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
   collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
-                 (float)friction, (float)mass_eps, grid, current_stream());
+                 (float)friction, (float)mass_eps, (float)min_volume, grid, current_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif

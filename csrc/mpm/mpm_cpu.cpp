@@ -116,6 +116,7 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
     std::memset(grid.mass + first, 0, sizeof(float) * kBlockNodes);
     std::memset(grid.momentum + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
     if (grid.mass_gradient) std::memset(grid.mass_gradient + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
+    if (grid.volume) std::memset(grid.volume + first, 0, sizeof(float) * kBlockNodes);
   }
   const float dx = geo.dx;
   for (int color = 0; color < 8; ++color) {
@@ -127,11 +128,13 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
       float* mass = grid.mass + grid_offset;
       float* momentum = grid.momentum + 3 * grid_offset;
       float* gradient = grid.mass_gradient ? grid.mass_gradient + 3 * grid_offset : nullptr;
+      float* volume = grid.volume ? grid.volume + grid_offset : nullptr;
       for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
         const int q = bins.order[it];
         AxisWeights aw[3];
         for (int d = 0; d < 3; ++d) aw[d] = axis_weights((p.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
         const float m = p.mass[q];
+        const float V = p.rest_volume[q];
         float A[9];
         apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
         const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
@@ -154,6 +157,7 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
               mass[idx] += w * m;
               for (int d = 0; d < 3; ++d)
                 momentum[3 * idx + d] += w * (mv[d] + A[3 * d] * px[a] + A[3 * d + 1] * py[b] + A[3 * d + 2] * pz[c]);
+              if (volume) volume[idx] += w * V;
               if (gradient) {
                 gradient[3 * idx + 0] += m * aw[0].dw[a] * aw[1].w[b] * aw[2].w[c];
                 gradient[3 * idx + 1] += m * aw[0].w[a] * aw[1].dw[b] * aw[2].w[c];
@@ -199,24 +203,14 @@ void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& ge
 }
 
 void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                   float strength, float friction, float mass_eps, GridArrays grid) {
+                   float strength, float friction, float mass_eps, float min_volume, GridArrays grid) {
   const long long nodes = geo.shape.nodes();
-  const int n_grids = geo.n_grids;
 #pragma omp parallel for schedule(static)
   for (int t = 0; t < n_contact; ++t) {
     const long long first = (long long)contact_blocks[t] * kBlockNodes;
-    for (long long node = first; node < first + kBlockNodes; ++node) {
-      for (int a = 0; a < n_grids; ++a) {
-        const long long ia = a * nodes + node;
-        if (!(grid.mass[ia] > mass_eps)) continue;
-        for (int b = a + 1; b < n_grids; ++b) {
-          const long long ib = b * nodes + node;
-          if (!(grid.mass[ib] > mass_eps)) continue;
-          contact_impulse(grid.mass[ia], grid.mass[ib], grid.velocity + 3 * ia, grid.velocity + 3 * ib,
-                          grid.mass_gradient + 3 * ia, grid.mass_gradient + 3 * ib, strength, friction);
-        }
-      }
-    }
+    for (long long node = first; node < first + kBlockNodes; ++node)
+      contact_node(node, nodes, geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient, grid.volume, strength,
+                   friction, mass_eps, min_volume);
   }
 }
 

@@ -27,6 +27,7 @@ struct StagedParticle {
   float dw[3][3];
   float f[3];
   float mass;
+  float volume;
   float mv[3];
   float A[9];
 };
@@ -41,6 +42,7 @@ __global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long l
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] = 0.f;
   if (grid.mass_gradient)
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] = 0.f;
+  if (grid.volume) grid.volume[idx] = 0.f;
 }
 
 __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
@@ -54,7 +56,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
   const int t = threadIdx.x;
   const int node[3] = {origin[0] + t / (kTile * kTile), origin[1] + (t / kTile) % kTile, origin[2] + t % kTile};
-  float mass = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f};
+  float mass = 0.f, volume = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f};
   bool reached = false;
   const int first = bins.cell_start[cell], last = bins.cell_start[cell + 1];
   for (int chunk = first; chunk < last; chunk += kChunk) {
@@ -72,6 +74,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         }
       }
       sp.mass = p.mass[q];
+      sp.volume = p.rest_volume[q];
       for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
       apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
     }
@@ -86,6 +89,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         const float px = ((float)a - sp.f[0]) * geo.dx, py = ((float)b - sp.f[1]) * geo.dx,
                     pz = ((float)c - sp.f[2]) * geo.dx;
         mass += w * sp.mass;
+        volume += w * sp.volume;
         for (int d = 0; d < 3; ++d)
           momentum[d] += w * (sp.mv[d] + sp.A[3 * d] * px + sp.A[3 * d + 1] * py + sp.A[3 * d + 2] * pz);
         gradient[0] += sp.mass * sp.dw[0][a] * sp.w[1][b] * sp.w[2][c];
@@ -101,6 +105,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] += momentum[d];
   if (grid.mass_gradient)
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] += gradient[d];
+  if (grid.volume) grid.volume[idx] += volume;
 }
 
 __global__ void grid_update_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, float dt, float gx,
@@ -130,21 +135,12 @@ __global__ void boundaries_kernel(const int32_t* touched, int n_touched, MPMGeom
 }
 
 __global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, MPMGeometry geo, float strength,
-                                 float friction, float mass_eps, GridArrays grid) {
+                                 float friction, float mass_eps, float min_volume, GridArrays grid) {
   long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_contact * kBlockNodes) return;
-  const long long nodes = geo.shape.nodes();
   const long long node = (long long)contact_blocks[t / kBlockNodes] * kBlockNodes + t % kBlockNodes;
-  for (int a = 0; a < geo.n_grids; ++a) {
-    const long long ia = a * nodes + node;
-    if (!(grid.mass[ia] > mass_eps)) continue;
-    for (int b = a + 1; b < geo.n_grids; ++b) {
-      const long long ib = b * nodes + node;
-      if (!(grid.mass[ib] > mass_eps)) continue;
-      contact_impulse(grid.mass[ia], grid.mass[ib], grid.velocity + 3 * ia, grid.velocity + 3 * ib,
-                      grid.mass_gradient + 3 * ia, grid.mass_gradient + 3 * ib, strength, friction);
-    }
-  }
+  contact_node(node, geo.shape.nodes(), geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient, grid.volume,
+               strength, friction, mass_eps, min_volume);
 }
 
 __global__ void g2p_kernel(long long n, G2PInputs in, MPMGeometry geo, float dt, const float* grid_velocity,
@@ -184,10 +180,10 @@ void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& g
 }
 
 void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, float strength,
-                    float friction, float mass_eps, GridArrays grid, void* stream) {
+                    float friction, float mass_eps, float min_volume, GridArrays grid, void* stream) {
   if (n_contact == 0) return;
   collision_kernel<<<blocks_for((long long)n_contact * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
-      contact_blocks, n_contact, geo, strength, friction, mass_eps, grid);
+      contact_blocks, n_contact, geo, strength, friction, mass_eps, min_volume, grid);
 }
 
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* grid_velocity,

@@ -50,6 +50,7 @@ struct GridArrays {  // n_grids * nodes rows each
   float* momentum;       // (.., 3)
   float* velocity;       // (.., 3)
   float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed
+  float* volume;         // (..) nodal volume sum w V0, or nullptr (only needed for contact)
 };
 
 // Returns -1 on success or the index of a particle whose stencil leaves the grid.
@@ -61,8 +62,10 @@ void grid_update_cpu(const int32_t* touched, int n_touched, const MPMGeometry& g
                      const float* gravity, float mass_eps, GridArrays grid);
 void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                     const BoundaryParams& bc, float mass_eps, GridArrays grid);
+// min_volume: a node is a contact only if the two bodies' nodal volumes add up to at least this
+// (Nairn's volume check; stops contact from acting across a gap, a cell before bodies touch).
 void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                   float strength, float friction, float mass_eps, GridArrays grid);
+                   float strength, float friction, float mass_eps, float min_volume, GridArrays grid);
 // Returns the number of particles whose position was clamped into the domain.
 long long g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
                   const float* grid_velocity, G2POutputs out);
@@ -76,7 +79,8 @@ void grid_update_cuda(const int32_t* touched, int n_touched, const MPMGeometry& 
 void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                      const BoundaryParams& bc, float mass_eps, GridArrays grid, void* stream);
 void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                    float strength, float friction, float mass_eps, GridArrays grid, void* stream);
+                    float strength, float friction, float mass_eps, float min_volume, GridArrays grid,
+                    void* stream);
 // clamped_count: device int64 counter (zeroed by the caller).
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
               const float* grid_velocity, G2POutputs out, long long* clamped_count, void* stream);

@@ -78,16 +78,18 @@ class GridFields:
     mass: torch.Tensor
     momentum: torch.Tensor
     velocity: torch.Tensor
-    mass_gradient: torch.Tensor | None  # only when contact normals are needed
+    mass_gradient: torch.Tensor | None  # Σ m_p ∇w: contact normals (only with contact)
+    volume: torch.Tensor | None         # Σ w V0_p: contact detection (only with contact)
 
     @staticmethod
-    def zeros(geometry: GridGeometry, device: torch.device, with_gradient: bool) -> "GridFields":
+    def zeros(geometry: GridGeometry, device: torch.device, with_contact: bool) -> "GridFields":
         shape = (geometry.n_grids, geometry.nodes_per_grid)
         return GridFields(
             mass=torch.zeros(shape, device=device),
             momentum=torch.zeros(shape + (3,), device=device),
             velocity=torch.zeros(shape + (3,), device=device),
-            mass_gradient=torch.zeros(shape + (3,), device=device) if with_gradient else None)
+            mass_gradient=torch.zeros(shape + (3,), device=device) if with_contact else None,
+            volume=torch.zeros(shape, device=device) if with_contact else None)
 
 
 @dataclass

@@ -30,7 +30,8 @@ def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, s
     """Particle-to-grid transfer into ``grid`` (mass, momentum, mass gradient)."""
     if use_compiled(x.device, backend):
         compiled_module().mpm_p2g(bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id,
-                                  *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient)
+                                  *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient,
+                                  grid.volume)
     else:
         reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid)
 
@@ -58,13 +59,13 @@ def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, 
 
 
 def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, friction: float, mass_eps: float,
-              grid: GridFields, backend: str = "auto") -> None:
-    """Contact impulses between object grids (SPEC §5.4)."""
+              min_volume: float, grid: GridFields, backend: str = "auto") -> None:
+    """Contact impulses between object grids (SPEC §5.4) where the bodies' nodal volumes touch."""
     if use_compiled(grid.mass.device, backend):
         compiled_module().mpm_collision(bins.contact_blocks, *geometry.args(), strength, friction, mass_eps,
-                                        grid.mass, grid.velocity, grid.mass_gradient)
+                                        min_volume, grid.mass, grid.velocity, grid.mass_gradient, grid.volume)
     else:
-        reference.collision(grid, strength, friction, mass_eps)
+        reference.collision(grid, strength, friction, mass_eps, min_volume)
 
 
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,

@@ -104,6 +104,9 @@ def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         grid.mass_gradient.zero_()
         grid.mass_gradient.view(-1, 3).index_add_(0, index.flatten(),
                                                   (gradient * mass[:, None, None]).reshape(-1, 3))
+    if grid.volume is not None:
+        grid.volume.zero_()
+        grid.volume.view(-1).index_add_(0, index.flatten(), (weight * rest_volume[:, None]).flatten())
 
 
 def grid_update(grid: GridFields, dt: float, gravity: torch.Tensor, mass_eps: float) -> None:
@@ -147,9 +150,13 @@ def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, gr
     grid.velocity.copy_(torch.where((grid.mass > mass_eps)[..., None], new_v, velocity))
 
 
-def collision(grid: GridFields, strength: float, friction: float, mass_eps: float) -> None:
-    """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4)."""
-    assert grid.mass_gradient is not None, "collision needs mass gradients"
+def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, min_volume: float) -> None:
+    """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4).
+
+    A node is a contact only where both bodies have mass and their nodal volumes add up to at
+    least ``min_volume`` (a gap of more than a fraction of a cell means not touching yet).
+    """
+    assert grid.mass_gradient is not None and grid.volume is not None, "collision needs contact fields"
     n_grids = grid.mass.shape[0]
     for a in range(n_grids):
         for b in range(a + 1, n_grids):
@@ -157,7 +164,8 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
             va, vb = grid.velocity[a], grid.velocity[b]
             ga, gb = grid.mass_gradient[a], grid.mass_gradient[b]
             na, nb = ga.norm(dim=-1, keepdim=True), gb.norm(dim=-1, keepdim=True)
-            both = (ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
+            both = ((ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
+                    & (grid.volume[a] + grid.volume[b] >= min_volume))
             normal = ga / na.clamp_min(1e-30) - gb / nb.clamp_min(1e-30)
             normal_len = normal.norm(dim=-1, keepdim=True)
             normal = normal / normal_len.clamp_min(1e-30)

@@ -21,6 +21,10 @@ from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundB
                                    SimulationBlowUp, StepStats)
 
 STATE_KEYS = ("x", "v", "C", "F_E", "alpha", "fractured", "stress")
+# Two bodies are in contact at a node once their nodal volumes fill this fraction of a cell
+# (Nairn's volume check). Without it the contact pass acts about a cell before the bodies touch,
+# and at corners its normal tilts, so tangential motion reads as approach and is braked.
+CONTACT_VOLUME_FRACTION = 0.75
 
 
 class CollisionMPM:
@@ -58,7 +62,8 @@ class CollisionMPM:
         self.grid_id = (self.particles.obj_id if collision_mode
                         else torch.zeros_like(self.particles.obj_id)).to(torch.int32).contiguous()
         self.use_contact = collision_mode and self.n_grids >= 2
-        self.grid = GridFields.zeros(self.geometry, self.device, with_gradient=self.use_contact)
+        self.grid = GridFields.zeros(self.geometry, self.device, with_contact=self.use_contact)
+        self.min_contact_volume = CONTACT_VOLUME_FRACTION * self.geometry.dx ** 3
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
         self.state = self._initial_state()
         self.last_bins: ParticleBins | None = None  # bins of the latest substep (diagnostics)
@@ -105,7 +110,8 @@ class CollisionMPM:
         ops.p2g(bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, g, backend)
         ops.grid_update(bins, geo, dt, self.gravity, self.mass_eps, g, backend)
         if self.use_contact:
-            ops.collision(bins, geo, self.contact.strength, self.contact.friction, self.mass_eps, g, backend)
+            ops.collision(bins, geo, self.contact.strength, self.contact.friction, self.mass_eps,
+                          self.min_contact_volume, g, backend)
         ops.boundaries(bins, geo, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps,
                        g, backend)
         x, v, C, F_E, alpha, stress, fractured, clamped = ops.g2p(
