@@ -1,0 +1,1 @@
+"""Command-line front ends of the entry scripts (argparse, exit codes, progress, summaries)."""

@@ -1,0 +1,298 @@
+"""``simulate.py``: run a scene through the Collision-MPM solver (SPEC §5).
+
+Exit status: 0 on success, 2 on invalid input (one ``error: <key path>: <problem>`` line on
+stderr, nothing simulated), 1 when the simulation blows up (the frames written so far stay
+valid and ``--resume``-able), 130 when interrupted.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import torch
+
+from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
+from fracture_gs.mpm.output import (SimulationOutput, diagnostics_row, load_frame,
+                                    particle_arrays)
+from fracture_gs.mpm.scene import BuiltScene, build_scene
+from fracture_gs.mpm.types import SimulationBlowUp
+
+DEFAULT_OUTPUT_ROOT = Path("output") / "sims"
+
+
+@dataclass
+class RunSummary:
+    """What a call of :func:`run_simulation` did (also printed as the final summary)."""
+
+    out_dir: Path
+    first_frame: int             # first frame computed by this call
+    last_frame: int              # last complete frame in the folder
+    steps: int                   # substeps of all frames 0..last_frame
+    dt_min: float                # smallest substep (the last one of a frame can be short)
+    mean_dt: float               # simulated time / substeps
+    wall_time: float             # seconds spent in this call's frames
+    momentum_drift: float        # |p(last) - p(0)|
+    momentum_scale: float        # Σ m |v| at frame 0 (reference for the drift)
+    energy_start: float
+    energy_end: float
+    fractured: int
+    particles: int
+    clamped: int                 # particles clamped into the domain, summed over frames
+
+
+class InvalidInput(ValueError):
+    """Bad command-line input; ``key`` names the argument."""
+
+    def __init__(self, key: str, problem: str) -> None:
+        self.key = key
+        super().__init__(f"{key}: {problem}")
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        prog="simulate.py", description="Run a Collision-MPM fracture simulation of a scene.")
+    parser.add_argument("--scene", required=True, help="scene YAML (SPEC §5.1)")
+    parser.add_argument("--out", default=None,
+                        help="output folder (default: output/sims/<scene name>)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="number of frames after frame 0 (overrides the scene)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default=None,
+                        help="default: cuda when available, else cpu")
+    parser.add_argument("--backend", choices=("auto", "cpp", "reference"), default="auto",
+                        help="compiled kernels (cpp), PyTorch reference, or auto")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in the output folder from its last frame")
+    return parser.parse_args(argv)
+
+
+def resolve_device(name: str | None) -> torch.device:
+    if name is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise InvalidInput("--device", "cuda was requested but no CUDA device is available")
+    return torch.device(name)
+
+
+def check_backend(device: torch.device, backend: str) -> None:
+    """InvalidInput when ``--backend cpp`` is asked for but the kernels are not built."""
+    from fracture_gs._backend import use_compiled
+
+    try:
+        use_compiled(device, backend)
+    except RuntimeError as exc:
+        raise InvalidInput("--backend", str(exc)) from None
+
+
+def create_solver(built: BuiltScene, device: torch.device, backend: str) -> Any:
+    """A ``CollisionMPM`` for the built scene (imported here: the solver is the heavy part)."""
+    from fracture_gs.mpm.solver import CollisionMPM
+
+    return CollisionMPM(built.particles, built.materials, built.domain, contact=built.contact,
+                        boundaries=built.boundaries, gravity=built.gravity, cfl=built.cfl,
+                        object_names=built.object_names, backend=backend, device=device)
+
+
+def first_difference(a: Any, b: Any, path: str = "") -> str | None:
+    """Key path of the first place two plain YAML values differ, or None if equal."""
+    if isinstance(a, Mapping) and isinstance(b, Mapping):
+        for key in list(a) + [k for k in b if k not in a]:
+            sub = f"{path}.{key}" if path else str(key)
+            if key not in a or key not in b:
+                return sub
+            found = first_difference(a[key], b[key], sub)
+            if found is not None:
+                return found
+        return None
+    if isinstance(a, list) and isinstance(b, list):
+        if len(a) != len(b):
+            return path or "<scene>"
+        for i, (x, y) in enumerate(zip(a, b)):
+            found = first_difference(x, y, f"{path}[{i}]")
+            if found is not None:
+                return found
+        return None
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and \
+            not isinstance(a, bool) and not isinstance(b, bool):
+        return None if float(a) == float(b) else (path or "<scene>")
+    return None if a == b else (path or "<scene>")
+
+
+def check_resumable(output: SimulationOutput, config: SceneConfig, built: BuiltScene) -> None:
+    """SceneError unless the folder holds a run of the same scene and particles."""
+    if not output.checkpoint_path.exists() or not output.scene_path.exists():
+        raise SceneError("--resume", f"{output.root} holds no run to resume "
+                         f"(no {output.checkpoint_path.name})")
+    stored = output.read_scene()
+    current = config.to_dict()
+    if isinstance(stored, dict):
+        stored = {k: v for k, v in stored.items() if k != "frames"}
+    current.pop("frames")
+    diff = first_difference(stored, current)
+    if diff is not None:
+        raise SceneError("--resume", f"the scene differs from {output.scene_path} at '{diff}'")
+    try:
+        with np.load(output.particles_path) as saved:
+            now = particle_arrays(built.particles)
+            same = all(np.array_equal(saved[k], now[k]) for k in ("rest_x", "mass", "obj_id"))
+    except (OSError, KeyError, ValueError):
+        same = False
+    if not same:
+        raise SceneError("--resume", f"the particles differ from {output.particles_path} "
+                         "(model files changed?)")
+
+
+def _print_summary(summary: RunSummary, stream: TextIO) -> None:
+    rel = summary.momentum_drift / summary.momentum_scale if summary.momentum_scale > 0 \
+        else float("nan")
+    d_energy = summary.energy_end - summary.energy_start
+    rel_e = d_energy / abs(summary.energy_start) if summary.energy_start != 0 else float("nan")
+    frames_done = summary.last_frame - summary.first_frame + 1
+    rate = frames_done / summary.wall_time if summary.wall_time > 0 else float("nan")
+    lines = [
+        f"done: frames {summary.first_frame}..{summary.last_frame} in {summary.out_dir}",
+        f"  steps          {summary.steps} (mean dt {summary.mean_dt:.3g} s, smallest "
+        f"{summary.dt_min:.3g} s incl. frame-end remainders)",
+        f"  wall time      {summary.wall_time:.2f} s ({rate:.2f} frames/s)",
+        f"  momentum drift |p_end - p_0| = {summary.momentum_drift:.4g} "
+        f"({rel:.3g} of sum m|v| at frame 0; gravity and boundaries change it legitimately)",
+        f"  energy change  {summary.energy_start:.6g} -> {summary.energy_end:.6g} "
+        f"({d_energy:+.4g}, {rel_e:+.2%})",
+        f"  fractured      {summary.fractured / max(summary.particles, 1):.2%} "
+        f"({summary.fractured} of {summary.particles} particles)",
+        f"  clamped        {summary.clamped} particle clamps into the domain (summed over frames)",
+    ]
+    print("\n".join(lines), file=stream)
+
+
+def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, solver: Any,
+              resume: bool) -> int:
+    """Start a fresh output folder (frame 0) or restore the checkpoint; returns the last
+    complete frame."""
+    if not resume:
+        output.start(config.to_dict(), built.particles)
+        row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
+        output.write_frame(0, solver.state, row, solver.state_dict())
+        return 0
+    output.remove_temporaries()
+    checkpoint = output.load_checkpoint()
+    solver.load_state_dict(checkpoint.solver_state)
+    output.write_scene(config.to_dict())
+    if not output.frame_path(checkpoint.frame).exists():  # killed between checkpoint and frame
+        output.write_frame(checkpoint.frame, solver.state, checkpoint.rows[-1],
+                           solver.state_dict())
+    return checkpoint.frame
+
+
+def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int,
+               wall: float, clamped: int) -> RunSummary:
+    """Summary numbers from the diagnostics rows of frames 0..done."""
+    rows = np.asarray(output.rows, dtype=np.float64)
+    col = {name: rows[:, i] for i, name in enumerate(output.columns)}
+    p0 = np.array([col["px"][0], col["py"][0], col["pz"][0]])
+    p1 = np.array([col["px"][-1], col["py"][-1], col["pz"][-1]])
+    start = load_frame(output.frame_path(0))
+    with np.load(output.particles_path) as constant:
+        scale = float(np.sum(constant["mass"].astype(np.float64) *
+                             np.linalg.norm(start["v"].astype(np.float64), axis=1)))
+    steps, dts = col["steps"][1:], col["dt_min"][1:]
+    return RunSummary(
+        out_dir=output.root, first_frame=min(first, done), last_frame=done,
+        steps=int(steps.sum()), dt_min=float(np.nanmin(dts)) if dts.size else float("nan"),
+        mean_dt=float(col["time"][-1] / steps.sum()) if steps.sum() > 0 else float("nan"),
+        wall_time=wall, momentum_drift=float(np.linalg.norm(p1 - p0)), momentum_scale=scale,
+        energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
+        fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped)
+
+
+def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.device,
+                   backend: str = "auto", resume: bool = False, progress: bool | None = None,
+                   log: TextIO | None = None) -> RunSummary:
+    """Build the scene, write the output folder and advance up to ``config.frames`` frames.
+
+    Raises :class:`SceneError` / :class:`InvalidInput` for invalid input (before anything is
+    simulated or written) and :class:`SimulationBlowUp` (message naming the frame and time)
+    when the run fails; the frames already written, the CSV, the plot and the checkpoint then
+    stay valid. ``progress=None`` shows the tqdm bar only on a terminal.
+    """
+    from tqdm import tqdm
+
+    log = log if log is not None else sys.stdout
+    built = build_scene(config, device)
+    output = SimulationOutput(out_dir, built.object_names)
+    if resume:
+        check_resumable(output, config, built)
+    check_backend(device, backend)
+    solver = create_solver(built, device, backend)
+    done = _open_run(config, built, output, solver, resume)
+
+    first = done + 1
+    if first > config.frames:
+        print(f"{output.root} already holds frames 0..{done}; nothing to simulate", file=log)
+    clamped = 0
+    started = time.perf_counter()
+    bar = tqdm(total=config.frames, initial=min(done, config.frames), unit="frame",
+               desc=config.name, disable=None if progress is None else not progress,
+               dynamic_ncols=True)
+    try:
+        for frame in range(first, config.frames + 1):
+            t_start = solver.state.time
+            tick = time.perf_counter()
+            try:
+                stats = solver.advance(config.frame_dt)
+            except SimulationBlowUp as exc:
+                raise SimulationBlowUp(
+                    f"simulation blew up while computing frame {frame} "
+                    f"(t = {t_start:.5g} .. {t_start + config.frame_dt:.5g} s): {exc}; "
+                    f"frames 0..{frame - 1} in {output.root} are valid") from exc
+            elapsed = time.perf_counter() - tick
+            clamped += int(stats.clamped)
+            row = diagnostics_row(frame, solver.state.time, stats.steps, stats.dt_min,
+                                  solver.diagnostics())
+            output.write_frame(frame, solver.state, row, solver.state_dict())
+            done = frame
+            bar.update(1)
+            bar.set_postfix(substeps_s=f"{stats.steps / max(elapsed, 1e-9):.0f}",
+                            dt=f"{config.frame_dt / max(stats.steps, 1):.2e}")
+    finally:
+        bar.close()
+        output.write_plot()
+    summary = _summarise(output, len(built.particles), first, done,
+                         time.perf_counter() - started, clamped)
+    _print_summary(summary, log)
+    return summary
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command-line entry point; returns the exit status."""
+    args = parse_args(argv)
+    try:
+        if args.frames is not None and args.frames < 1:
+            raise InvalidInput("--frames", f"{args.frames} is not >= 1")
+        config = load_scene(args.scene)
+        if args.frames is not None:
+            config = replace(config, frames=args.frames)
+        device = resolve_device(args.device)
+        out_dir = Path(args.out) if args.out else DEFAULT_OUTPUT_ROOT / config.name
+        run_simulation(config, out_dir, device=device, backend=args.backend,
+                       resume=args.resume)
+    except (SceneError, InvalidInput) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except SimulationBlowUp as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("interrupted; the frames written so far are valid, continue with --resume",
+              file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,623 @@
+"""Scene YAML (SPEC §5.1) → validated, typed :class:`SceneConfig` with every default filled in.
+
+Every key is checked before anything runs: types, ranges, unknown keys (typos), mutually
+exclusive keys and referenced files. A problem raises :class:`SceneError`, whose message names
+the key path, e.g. ``objects[1].materials[0].nu: 0.5 is not < 0.5``.
+
+Checks that need the objects' particles (every part has a material, the transformed object
+lies inside the domain) happen when the particles are built (:mod:`fracture_gs.mpm.scene`);
+they raise the same :class:`SceneError`, still before the simulation starts.
+
+Conventions:
+
+* ``transform`` is applied to an object's particles as ``x_world = translate + scale·R·x``
+  with ``R = Rz(γ) · Ry(β) · Rx(α)`` for ``rotate_deg: [α, β, γ]``, i.e. extrinsic rotations
+  about the fixed world axes X, then Y, then Z (scipy's ``from_euler("xyz", ...)``).
+* ``model`` paths are resolved against the current working directory first, then against
+  the folder of the scene file; a folder must contain ``particles.ply`` (a ``train.py``
+  output), a file must be a ``.ply`` of particles.
+* NACC's α0 may be given as ``alpha0`` or as the paper's ``Jp0`` (α0 = ln Jp0), and M as
+  ``M`` or as ``friction_angle`` φ in degrees (M = 6 sin φ / (3 − sin φ)). The resolved scene
+  always holds ``alpha0`` and ``M``.
+"""
+from __future__ import annotations
+
+import difflib
+import math
+import os
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+
+CONTACT_MODES = ("collision", "mls")
+BOX_CONDITIONS = ("slip", "sticky", "separate")
+MATERIAL_MODELS = ("nacc", "elastic")
+SHAPES = ("box", "sphere", "cylinder")
+PARTICLES_FILE = "particles.ply"
+_NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+# Defaults of optional keys (the paper's values where it gives them, Table 1 / SPEC §5.1).
+DEFAULT_FRAMES = 100
+DEFAULT_FRAME_DT = 1.0 / 60.0
+DEFAULT_GRAVITY = (0.0, 0.0, -9.8)
+DEFAULT_CFL = 0.3
+DEFAULT_PARTICLES_PER_CELL = 8
+DEFAULT_BETA = 0.5
+DEFAULT_XI = 1.0
+DEFAULT_M = 2.36
+DEFAULT_GROUND_FRICTION = 0.5
+
+
+class SceneError(ValueError):
+    """An invalid scene: ``key_path`` names the bad key (or the file), ``problem`` says why."""
+
+    def __init__(self, key_path: str, problem: str) -> None:
+        self.key_path = key_path
+        self.problem = problem
+        super().__init__(f"{key_path}: {problem}" if key_path else problem)
+
+
+# ----------------------------------------------------------------------------- dataclasses
+
+
+@dataclass(frozen=True)
+class DomainConfig:
+    """Simulation box; cells are cubes of edge ``dx = (max - min)[0] / grid``."""
+
+    min: tuple[float, float, float]
+    max: tuple[float, float, float]
+    grid: int
+
+    @property
+    def dx(self) -> float:
+        return (self.max[0] - self.min[0]) / self.grid
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    mode: Literal["collision", "mls"] = "collision"
+    strength: float = 1.0
+    friction: float = 0.0
+
+
+@dataclass(frozen=True)
+class GroundConfig:
+    """Half-space z >= height with Coulomb friction."""
+
+    height: float
+    friction: float = DEFAULT_GROUND_FRICTION
+    type: Literal["ground"] = "ground"
+
+
+@dataclass(frozen=True)
+class BoxConfig:
+    """Domain walls (3 cells thick)."""
+
+    condition: Literal["slip", "sticky", "separate"] = "slip"
+    type: Literal["box"] = "box"
+
+
+BoundaryConfig = GroundConfig | BoxConfig
+
+
+@dataclass(frozen=True)
+class TransformConfig:
+    """x_world = translate + scale · Rz·Ry·Rx · x (rotate_deg = [x, y, z] in degrees)."""
+
+    scale: float = 1.0
+    rotate_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    translate: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PrimitiveConfig:
+    """An analytic solid centred at the origin of its object frame (cylinder axis = z)."""
+
+    shape: Literal["box", "sphere", "cylinder"]
+    size: tuple[float, float, float] | None = None   # box edge lengths
+    radius: float | None = None                      # sphere, cylinder
+    height: float | None = None                      # cylinder
+    particles_per_cell: int = DEFAULT_PARTICLES_PER_CELL
+
+
+@dataclass(frozen=True)
+class MaterialConfig:
+    """Material of one part of an object; NACC fields are None for ``elastic``."""
+
+    part: int
+    model: Literal["nacc", "elastic"]
+    E: float
+    nu: float
+    density: float
+    alpha0: float | None = None
+    beta: float | None = None
+    xi: float | None = None
+    M: float | None = None
+    alpha_threshold: float | None = None
+
+
+@dataclass(frozen=True)
+class ObjectConfig:
+    name: str
+    materials: tuple[MaterialConfig, ...]
+    model: Path | None = None          # absolute path as given (folder or .ply)
+    primitive: PrimitiveConfig | None = None
+    transform: TransformConfig = TransformConfig()
+    velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def particles_file(self) -> Path | None:
+        """The ``.ply`` with this object's particles (None for a primitive)."""
+        if self.model is None:
+            return None
+        return self.model / PARTICLES_FILE if self.model.is_dir() else self.model
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """A fully validated scene with every default filled in."""
+
+    name: str
+    domain: DomainConfig
+    objects: tuple[ObjectConfig, ...]
+    frames: int = DEFAULT_FRAMES
+    frame_dt: float = DEFAULT_FRAME_DT
+    gravity: tuple[float, float, float] = DEFAULT_GRAVITY
+    contact: ContactConfig = ContactConfig()
+    cfl: float = DEFAULT_CFL
+    boundaries: tuple[BoundaryConfig, ...] = (BoxConfig(),)
+    seed: int = 0
+    source: Path | None = field(default=None, compare=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain-YAML form of the resolved scene; ``parse_scene(to_dict())`` gives it back."""
+        return {
+            "name": self.name,
+            "domain": {"min": list(self.domain.min), "max": list(self.domain.max),
+                       "grid": self.domain.grid},
+            "frames": self.frames,
+            "frame_dt": self.frame_dt,
+            "gravity": list(self.gravity),
+            "contact": {"mode": self.contact.mode, "strength": self.contact.strength,
+                        "friction": self.contact.friction},
+            "cfl": self.cfl,
+            "seed": self.seed,
+            "boundaries": [_boundary_dict(b) for b in self.boundaries],
+            "objects": [_object_dict(o) for o in self.objects],
+        }
+
+
+def _boundary_dict(boundary: BoundaryConfig) -> dict[str, Any]:
+    if isinstance(boundary, GroundConfig):
+        return {"type": "ground", "height": boundary.height, "friction": boundary.friction}
+    return {"type": "box", "condition": boundary.condition}
+
+
+def _object_dict(obj: ObjectConfig) -> dict[str, Any]:
+    out: dict[str, Any] = {"name": obj.name}
+    if obj.model is not None:
+        out["model"] = str(obj.model)
+    else:
+        assert obj.primitive is not None
+        prim = obj.primitive
+        p: dict[str, Any] = {"shape": prim.shape}
+        if prim.shape == "box":
+            p["size"] = list(prim.size or ())
+        else:
+            p["radius"] = prim.radius
+            if prim.shape == "cylinder":
+                p["height"] = prim.height
+        p["particles_per_cell"] = prim.particles_per_cell
+        out["primitive"] = p
+    out["transform"] = {"scale": obj.transform.scale,
+                        "rotate_deg": list(obj.transform.rotate_deg),
+                        "translate": list(obj.transform.translate)}
+    out["velocity"] = list(obj.velocity)
+    out["materials"] = [_material_dict(m) for m in obj.materials]
+    return out
+
+
+def _material_dict(mat: MaterialConfig) -> dict[str, Any]:
+    out: dict[str, Any] = {"part": mat.part, "model": mat.model, "E": mat.E, "nu": mat.nu,
+                           "density": mat.density}
+    if mat.model == "nacc":
+        out.update(alpha0=mat.alpha0, beta=mat.beta, xi=mat.xi, M=mat.M,
+                   alpha_threshold=mat.alpha_threshold)
+    return out
+
+
+# ----------------------------------------------------------------------------- YAML reading
+
+
+class _SceneLoader(yaml.SafeLoader):
+    """SafeLoader that also reads YAML 1.2 floats such as ``5.0e5`` or ``1e4`` as numbers."""
+
+
+_SceneLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                   |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                   |\.[0-9_]+(?:[eE][-+]?[0-9]+)?
+                   |[-+]?\.(?:inf|Inf|INF)
+                   |\.(?:nan|NaN|NAN))$""", re.X),
+    list("-+0123456789."))
+
+
+def read_yaml(path: str | os.PathLike[str]) -> Any:
+    """Parse a YAML file (``5.0e5`` is a float); errors name the file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise SceneError(str(path), "file not found") from None
+    except OSError as exc:
+        raise SceneError(str(path), f"cannot read ({exc.strerror})") from None
+    try:
+        return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise SceneError(str(path), f"invalid YAML{where}: {problem}") from None
+
+
+def load_scene(path: str | os.PathLike[str]) -> SceneConfig:
+    """Read and validate a scene file; raises :class:`SceneError` naming the bad key."""
+    path = Path(path)
+    data = read_yaml(path)
+    return parse_scene(data, base_dir=path.parent, default_name=path.stem, source=path)
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+_MISSING = object()
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, str):
+        return repr(value)
+    return str(value)
+
+
+def _type_name(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, Mapping):
+        return "a mapping"
+    if isinstance(value, list):
+        return "a list"
+    return f"{type(value).__name__} {_fmt(value)}"
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+def _mapping(value: Any, path: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise SceneError(path or "<scene>", f"expected a mapping, got {_type_name(value)}")
+    for key in value:
+        if not isinstance(key, str):
+            raise SceneError(_join(path, str(key)), "keys must be strings")
+    return value
+
+
+def _check_keys(data: Mapping[str, Any], path: str, allowed: Sequence[str],
+                required: Sequence[str] = ()) -> None:
+    for key in data:
+        if key not in allowed:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else \
+                f" (allowed: {', '.join(allowed)})"
+            raise SceneError(_join(path, key), f"unknown key{hint}")
+    for key in required:
+        if key not in data:
+            raise SceneError(_join(path, key), "required key is missing")
+
+
+def _number(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
+            gt: float | None = None, ge: float | None = None,
+            lt: float | None = None, le: float | None = None) -> float:
+    keypath = _join(path, key)
+    if key not in data:
+        if default is _MISSING:
+            raise SceneError(keypath, "required key is missing")
+        return default
+    return _check_number(data[key], keypath, gt=gt, ge=ge, lt=lt, le=le)
+
+
+def _check_number(value: Any, keypath: str, *, gt: float | None = None,
+                  ge: float | None = None, lt: float | None = None,
+                  le: float | None = None) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SceneError(keypath, f"expected a number, got {_type_name(value)}")
+    if not math.isfinite(value):
+        raise SceneError(keypath, f"{_fmt(value)} is not finite")
+    if gt is not None and not value > gt:
+        raise SceneError(keypath, f"{_fmt(value)} is not > {_fmt(gt)}")
+    if ge is not None and not value >= ge:
+        raise SceneError(keypath, f"{_fmt(value)} is not >= {_fmt(ge)}")
+    if lt is not None and not value < lt:
+        raise SceneError(keypath, f"{_fmt(value)} is not < {_fmt(lt)}")
+    if le is not None and not value <= le:
+        raise SceneError(keypath, f"{_fmt(value)} is not <= {_fmt(le)}")
+    return float(value)
+
+
+def _integer(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
+             ge: int | None = None) -> int:
+    keypath = _join(path, key)
+    if key not in data:
+        if default is _MISSING:
+            raise SceneError(keypath, "required key is missing")
+        return default
+    value = data[key]
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SceneError(keypath, f"expected an integer, got {_type_name(value)}")
+    if ge is not None and value < ge:
+        raise SceneError(keypath, f"{value} is not >= {ge}")
+    return value
+
+
+def _vec3(data: Mapping[str, Any], key: str, path: str,
+          default: Any = _MISSING, *, gt: float | None = None) -> tuple[float, float, float]:
+    keypath = _join(path, key)
+    if key not in data:
+        if default is _MISSING:
+            raise SceneError(keypath, "required key is missing")
+        return default
+    value = data[key]
+    if not isinstance(value, list) or len(value) != 3:
+        raise SceneError(keypath, f"expected a list of 3 numbers, got {_type_name(value)}")
+    return tuple(_check_number(v, f"{keypath}[{i}]", gt=gt)  # type: ignore[return-value]
+                 for i, v in enumerate(value))
+
+
+def _choice(data: Mapping[str, Any], key: str, path: str, choices: Sequence[str],
+            default: Any = _MISSING) -> str:
+    keypath = _join(path, key)
+    if key not in data:
+        if default is _MISSING:
+            raise SceneError(keypath, "required key is missing")
+        return default
+    value = data[key]
+    if not isinstance(value, str) or value not in choices:
+        raise SceneError(keypath, f"{_fmt(value)} is not one of {', '.join(choices)}")
+    return value
+
+
+def _list(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING) -> list[Any]:
+    keypath = _join(path, key)
+    if key not in data:
+        if default is _MISSING:
+            raise SceneError(keypath, "required key is missing")
+        return default
+    value = data[key]
+    if not isinstance(value, list):
+        raise SceneError(keypath, f"expected a list, got {_type_name(value)}")
+    return value
+
+
+def _name(value: Any, keypath: str) -> str:
+    if not isinstance(value, str) or not _NAME_PATTERN.match(value):
+        raise SceneError(keypath, f"{_fmt(value)} is not a valid name "
+                                  "(letters, digits, '_', '-', '.'; no spaces or slashes)")
+    return value
+
+
+_TOP_KEYS = ("name", "domain", "frames", "frame_dt", "gravity", "contact", "cfl", "boundaries",
+             "objects", "seed")
+
+
+def parse_scene(data: Any, *, base_dir: str | os.PathLike[str] | None = None,
+                default_name: str | None = None, source: Path | None = None) -> SceneConfig:
+    """Validate a parsed scene mapping and fill in defaults.
+
+    ``base_dir`` is the second place relative ``model`` paths are looked up (after the
+    working directory); ``default_name`` is used when the scene has no ``name``.
+    """
+    data = _mapping(data, "")
+    _check_keys(data, "", _TOP_KEYS, required=("domain", "objects"))
+    if "name" in data:
+        name = _name(data["name"], "name")
+    elif default_name is not None:
+        name = _name(default_name, "name")
+    else:
+        raise SceneError("name", "required key is missing")
+    domain = _parse_domain(data["domain"])
+    frames = _integer(data, "frames", "", DEFAULT_FRAMES, ge=1)
+    frame_dt = _number(data, "frame_dt", "", DEFAULT_FRAME_DT, gt=0.0)
+    gravity = _vec3(data, "gravity", "", DEFAULT_GRAVITY)
+    contact = _parse_contact(data.get("contact", {}))
+    cfl = _number(data, "cfl", "", DEFAULT_CFL, gt=0.0, le=1.0)
+    seed = _integer(data, "seed", "", 0, ge=0)
+    boundaries = _parse_boundaries(_list(data, "boundaries", "", [{"type": "box"}]), domain)
+    raw_objects = _list(data, "objects", "")
+    if not raw_objects:
+        raise SceneError("objects", "at least one object is required")
+    base = Path(base_dir) if base_dir is not None else None
+    objects = tuple(_parse_object(o, f"objects[{i}]", i, base) for i, o in enumerate(raw_objects))
+    seen: dict[str, int] = {}
+    for i, obj in enumerate(objects):
+        if obj.name in seen:
+            raise SceneError(f"objects[{i}].name",
+                             f"'{obj.name}' is already the name of objects[{seen[obj.name]}]")
+        seen[obj.name] = i
+    return SceneConfig(name=name, domain=domain, objects=objects, frames=frames,
+                       frame_dt=frame_dt, gravity=gravity, contact=contact, cfl=cfl,
+                       boundaries=boundaries, seed=seed, source=source)
+
+
+def _parse_domain(value: Any) -> DomainConfig:
+    data = _mapping(value, "domain")
+    _check_keys(data, "domain", ("min", "max", "grid"), required=("min", "max", "grid"))
+    lower = _vec3(data, "min", "domain")
+    upper = _vec3(data, "max", "domain")
+    for axis in range(3):
+        if not upper[axis] > lower[axis]:
+            raise SceneError(f"domain.max[{axis}]",
+                             f"{_fmt(upper[axis])} is not > domain.min[{axis}] = "
+                             f"{_fmt(lower[axis])}")
+    grid = _integer(data, "grid", "domain", ge=8)
+    return DomainConfig(min=lower, max=upper, grid=grid)
+
+
+def _parse_contact(value: Any) -> ContactConfig:
+    data = _mapping(value, "contact")
+    _check_keys(data, "contact", ("mode", "strength", "friction"))
+    return ContactConfig(mode=_choice(data, "mode", "contact", CONTACT_MODES, "collision"),
+                         strength=_number(data, "strength", "contact", 1.0, ge=0.0),
+                         friction=_number(data, "friction", "contact", 0.0, ge=0.0))
+
+
+def _parse_boundaries(items: list[Any], domain: DomainConfig) -> tuple[BoundaryConfig, ...]:
+    out: list[BoundaryConfig] = []
+    seen: dict[str, int] = {}
+    for i, item in enumerate(items):
+        path = f"boundaries[{i}]"
+        data = _mapping(item, path)
+        kind = _choice(data, "type", path, ("ground", "box"))
+        if kind in seen:
+            raise SceneError(f"{path}.type",
+                             f"a second '{kind}' boundary (boundaries[{seen[kind]}] is one)")
+        seen[kind] = i
+        if kind == "ground":
+            _check_keys(data, path, ("type", "height", "friction"), required=("height",))
+            height = _number(data, "height", path, ge=domain.min[2], lt=domain.max[2])
+            out.append(GroundConfig(height=height,
+                                    friction=_number(data, "friction", path,
+                                                     DEFAULT_GROUND_FRICTION, ge=0.0)))
+        else:
+            _check_keys(data, path, ("type", "condition"))
+            out.append(BoxConfig(condition=_choice(data, "condition", path, BOX_CONDITIONS,
+                                                   "slip")))  # type: ignore[arg-type]
+    return tuple(out)
+
+
+def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> ObjectConfig:
+    data = _mapping(value, path)
+    _check_keys(data, path, ("name", "model", "primitive", "transform", "velocity",
+                             "materials"), required=("materials",))
+    name = _name(data["name"], f"{path}.name") if "name" in data else f"object{index}"
+    has_model, has_primitive = "model" in data, "primitive" in data
+    if has_model == has_primitive:
+        raise SceneError(path, "exactly one of 'model' and 'primitive' is required"
+                         + (" (both given)" if has_model else ""))
+    model = _resolve_model(data["model"], f"{path}.model", base_dir) if has_model else None
+    primitive = _parse_primitive(data["primitive"], f"{path}.primitive") if has_primitive \
+        else None
+    transform = _parse_transform(data.get("transform", {}), f"{path}.transform")
+    velocity = _vec3(data, "velocity", path, (0.0, 0.0, 0.0))
+    raw_materials = _list(data, "materials", path)
+    if not raw_materials:
+        raise SceneError(f"{path}.materials", "at least one material is required")
+    materials = tuple(_parse_material(m, f"{path}.materials[{j}]")
+                      for j, m in enumerate(raw_materials))
+    parts: dict[int, int] = {}
+    for j, mat in enumerate(materials):
+        if mat.part in parts:
+            raise SceneError(f"{path}.materials[{j}].part",
+                             f"part {mat.part} already has a material "
+                             f"(materials[{parts[mat.part]}])")
+        parts[mat.part] = j
+    return ObjectConfig(name=name, materials=materials, model=model, primitive=primitive,
+                        transform=transform, velocity=velocity)
+
+
+def _resolve_model(value: Any, keypath: str, base_dir: Path | None) -> Path:
+    if not isinstance(value, str) or not value:
+        raise SceneError(keypath, f"expected a path, got {_type_name(value)}")
+    given = Path(value).expanduser()
+    candidates = [given] if given.is_absolute() else \
+        [Path.cwd() / given] + ([base_dir / given] if base_dir is not None else [])
+    found = next((c for c in candidates if c.exists()), None)
+    if found is None:
+        raise SceneError(keypath, f"'{value}' does not exist")
+    found = found.resolve()
+    particles = found / PARTICLES_FILE if found.is_dir() else found
+    if found.is_dir() and not particles.is_file():
+        raise SceneError(keypath, f"'{value}' has no {PARTICLES_FILE} (not a train.py output)")
+    if particles.suffix.lower() != ".ply":
+        raise SceneError(keypath, f"'{value}' is neither a train.py output folder nor a .ply")
+    try:
+        with open(particles, "rb") as handle:
+            head = handle.read(4)
+    except OSError as exc:
+        raise SceneError(keypath, f"cannot read '{particles}' ({exc.strerror})") from None
+    if head[:3] != b"ply":
+        raise SceneError(keypath, f"'{particles}' is not a PLY file")
+    return found
+
+
+def _parse_primitive(value: Any, path: str) -> PrimitiveConfig:
+    data = _mapping(value, path)
+    shape = _choice(data, "shape", path, SHAPES)
+    ppc = ("particles_per_cell",)
+    if shape == "box":
+        _check_keys(data, path, ("shape", "size") + ppc, required=("size",))
+        prim = PrimitiveConfig(shape="box", size=_vec3(data, "size", path, gt=0.0))
+    elif shape == "sphere":
+        _check_keys(data, path, ("shape", "radius") + ppc, required=("radius",))
+        prim = PrimitiveConfig(shape="sphere", radius=_number(data, "radius", path, gt=0.0))
+    else:
+        _check_keys(data, path, ("shape", "radius", "height") + ppc,
+                    required=("radius", "height"))
+        prim = PrimitiveConfig(shape="cylinder", radius=_number(data, "radius", path, gt=0.0),
+                               height=_number(data, "height", path, gt=0.0))
+    count = _integer(data, "particles_per_cell", path, DEFAULT_PARTICLES_PER_CELL, ge=1)
+    return PrimitiveConfig(shape=prim.shape, size=prim.size, radius=prim.radius,
+                           height=prim.height, particles_per_cell=count)
+
+
+def _parse_transform(value: Any, path: str) -> TransformConfig:
+    data = _mapping(value, path)
+    _check_keys(data, path, ("scale", "rotate_deg", "translate"))
+    return TransformConfig(scale=_number(data, "scale", path, 1.0, gt=0.0),
+                           rotate_deg=_vec3(data, "rotate_deg", path, (0.0, 0.0, 0.0)),
+                           translate=_vec3(data, "translate", path, (0.0, 0.0, 0.0)))
+
+
+_ELASTIC_KEYS = ("part", "model", "E", "nu", "density")
+_NACC_KEYS = _ELASTIC_KEYS + ("alpha0", "Jp0", "beta", "xi", "M", "friction_angle",
+                              "alpha_threshold")
+
+
+def _parse_material(value: Any, path: str) -> MaterialConfig:
+    data = _mapping(value, path)
+    model = _choice(data, "model", path, MATERIAL_MODELS)
+    _check_keys(data, path, _NACC_KEYS if model == "nacc" else _ELASTIC_KEYS,
+                required=("E", "nu", "density"))
+    part = _integer(data, "part", path, 0, ge=0)
+    E = _number(data, "E", path, gt=0.0)
+    nu = _number(data, "nu", path, ge=0.0, lt=0.5)
+    density = _number(data, "density", path, gt=0.0)
+    if model == "elastic":
+        return MaterialConfig(part=part, model="elastic", E=E, nu=nu, density=density)
+    if "alpha0" in data and "Jp0" in data:
+        raise SceneError(f"{path}.Jp0", "give only one of 'alpha0' and 'Jp0' (both given)")
+    if "alpha0" not in data and "Jp0" not in data:
+        raise SceneError(f"{path}.alpha0", "required key is missing (give 'alpha0' or 'Jp0')")
+    if "alpha0" in data:
+        alpha0 = _number(data, "alpha0", path)
+    else:
+        alpha0 = math.log(_number(data, "Jp0", path, gt=0.0))
+    if "M" in data and "friction_angle" in data:
+        raise SceneError(f"{path}.M", "give at most one of 'M' and 'friction_angle' (both given)")
+    if "friction_angle" in data:
+        phi = math.radians(_number(data, "friction_angle", path, gt=0.0, lt=90.0))
+        M = 6.0 * math.sin(phi) / (3.0 - math.sin(phi))
+    else:
+        M = _number(data, "M", path, DEFAULT_M, gt=0.0)
+    return MaterialConfig(part=part, model="nacc", E=E, nu=nu, density=density, alpha0=alpha0,
+                          beta=_number(data, "beta", path, DEFAULT_BETA, ge=0.0),
+                          xi=_number(data, "xi", path, DEFAULT_XI, ge=0.0), M=M,
+                          alpha_threshold=_number(data, "alpha_threshold", path, 0.0))

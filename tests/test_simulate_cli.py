@@ -1,0 +1,452 @@
+"""simulate.py: exit codes, output folder, diagnostics, blow-up handling and exact --resume.
+
+Two kinds of tests:
+
+* driver mechanics (always run): the solver is replaced by ``BallisticSolver``, a small
+  deterministic particle integrator with the documented ``CollisionMPM`` interface, so the
+  folder layout, checkpoint order and resume logic are tested independently of the physics;
+* end-to-end with the real ``fracture_gs.mpm.solver.CollisionMPM`` (skipped until it exists).
+"""
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from fracture_gs.cli import simulate as cli
+from fracture_gs.config import load_scene
+from fracture_gs.mpm.output import diagnostics_columns, load_frame, read_diagnostics_csv
+from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _module_available(name: str) -> bool:
+    try:
+        __import__(name)
+    except ImportError:
+        return False
+    return True
+
+
+needs_materials = pytest.mark.skipif(not _module_available("fracture_gs.mpm.materials"),
+                                     reason="fracture_gs.mpm.materials not merged yet")
+needs_solver = pytest.mark.skipif(
+    not (_module_available("fracture_gs.mpm.solver")
+         and _module_available("fracture_gs.mpm.materials")),
+    reason="fracture_gs.mpm.solver / materials not merged yet")
+
+
+def tiny_scene() -> dict[str, Any]:
+    """Two small NACC spheres flying at each other on a 16³ grid (a few hundred particles)."""
+    material = {"part": 0, "model": "nacc", "E": 2.0e3, "nu": 0.3, "density": 100.0,
+                "Jp0": 0.98, "beta": 0.5, "xi": 1.0, "M": 2.36}
+    return {
+        "name": "tiny",
+        "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": 16},
+        "frames": 6,
+        "frame_dt": 0.01,
+        "gravity": [0, 0, -9.8],
+        "cfl": 0.4,
+        "boundaries": [{"type": "ground", "height": 0.2}, {"type": "box", "condition": "slip"}],
+        "objects": [
+            {"name": "left", "primitive": {"shape": "sphere", "radius": 0.12},
+             "transform": {"translate": [0.36, 0.5, 0.5]}, "velocity": [2, 0, 0],
+             "materials": [material]},
+            {"name": "right", "primitive": {"shape": "sphere", "radius": 0.12},
+             "transform": {"translate": [0.64, 0.5, 0.5]}, "velocity": [-2, 0, 0],
+             "materials": [dict(material)]},
+        ],
+    }
+
+
+def write_scene(path: Path, scene: dict[str, Any]) -> Path:
+    path.write_text(yaml.safe_dump(scene, sort_keys=False))
+    return path
+
+
+# ----------------------------------------------------------------------------- test double
+
+
+class BallisticSolver:
+    """Deterministic stand-in with the CollisionMPM interface: free flight + gravity, clamped
+    into the domain, adaptive substeps. It lets the driver be tested without the physics."""
+
+    def __init__(self, particles: Any, materials: Any, domain: Any, *, contact: Any = None,
+                 boundaries: Any = (), gravity: Any = (0, 0, -9.8), cfl: float = 0.3,
+                 object_names: Any = (), backend: str = "auto",
+                 device: torch.device = torch.device("cpu")) -> None:
+        self.particles = particles.to(device)
+        self.domain = domain
+        self.gravity = torch.tensor(gravity, dtype=torch.float32, device=device)
+        self.cfl = cfl
+        self.object_names = list(object_names)
+        n = len(particles)
+        eye = torch.eye(3, device=device).expand(n, 3, 3).clone()
+        self.state = SimState(x=self.particles.x.clone(), v=self.particles.v.clone(),
+                              C=torch.zeros(n, 3, 3, device=device), F_E=eye,
+                              alpha=torch.zeros(n, device=device),
+                              fractured=torch.zeros(n, dtype=torch.bool, device=device))
+
+    def advance(self, frame_dt: float) -> StepStats:
+        s = self.state
+        x, v = s.x.clone(), s.v.clone()
+        t, left, steps, dt_min, clamped = s.time, frame_dt, 0, float("inf"), 0
+        lo = torch.tensor(self.domain.lower) + 3 * self.domain.dx
+        hi = torch.tensor(self.domain.upper) - 3 * self.domain.dx
+        while left > 1e-12 * frame_dt:
+            dt = min(self.cfl * self.domain.dx / (float(v.norm(dim=1).max()) + 1.0), left)
+            v = v + dt * self.gravity
+            x = x + dt * v
+            outside = ((x < lo) | (x > hi)).any(dim=1)
+            clamped += int(outside.sum())
+            x = torch.minimum(torch.maximum(x, lo), hi)
+            if not torch.isfinite(x).all():
+                raise SimulationBlowUp("non-finite position")
+            t, left, steps, dt_min = t + dt, left - dt, steps + 1, min(dt_min, dt)
+        self.state = SimState(x=x, v=v, C=s.C, F_E=s.F_E, alpha=s.alpha,
+                              fractured=s.fractured | (x[:, 2] < 0.3), time=t,
+                              step=s.step + steps)
+        return StepStats(steps=steps, dt_min=dt_min, clamped=clamped)
+
+    def diagnostics(self) -> dict[str, Any]:
+        m = self.particles.mass.double()
+        x, v = self.state.x.double(), self.state.v.double()
+        g = self.gravity.double()
+
+        def summary(mask: torch.Tensor) -> dict[str, Any]:
+            mm = m[mask]
+            return {"momentum": (mm[:, None] * v[mask]).sum(0),
+                    "kinetic": 0.5 * (mm * (v[mask] ** 2).sum(1)).sum(),
+                    "elastic": torch.zeros((), dtype=torch.float64),
+                    "gravitational": -(mm * (x[mask] @ g)).sum()}
+
+        total = summary(torch.ones_like(m, dtype=torch.bool))
+        total["per_object"] = [summary(self.particles.obj_id == k)
+                               for k in range(len(self.object_names))]
+        total["fractured"] = int(self.state.fractured.sum())
+        return total
+
+    def state_dict(self) -> dict[str, Any]:
+        s = self.state
+        return {"x": s.x.clone(), "v": s.v.clone(), "C": s.C.clone(), "F_E": s.F_E.clone(),
+                "alpha": s.alpha.clone(), "fractured": s.fractured.clone(), "time": s.time,
+                "step": s.step}
+
+    def load_state_dict(self, d: dict[str, Any]) -> None:
+        arrays = {k: torch.as_tensor(d[k]) for k in ("x", "v", "C", "F_E", "alpha", "fractured")}
+        self.state = SimState(**arrays, time=float(d["time"]), step=int(d["step"]))
+
+
+@pytest.fixture
+def ballistic(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Run the driver on the BallisticSolver (materials are not needed either)."""
+    monkeypatch.setattr(cli, "create_solver", lambda built, device, backend: BallisticSolver(
+        built.particles, built.materials, built.domain, gravity=built.gravity, cfl=built.cfl,
+        object_names=built.object_names, device=device))
+    monkeypatch.setattr("fracture_gs.mpm.scene.make_material", lambda config: config)
+
+
+def run_main(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = cli.main(args)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def frames_of(out: Path) -> list[dict[str, np.ndarray]]:
+    files = sorted((out / "frames").glob("frame_*.npz"))
+    return [load_frame(f) for f in files]
+
+
+def assert_same_frames(a: Path, b: Path) -> None:
+    fa, fb = frames_of(a), frames_of(b)
+    assert len(fa) == len(fb)
+    for frame_a, frame_b in zip(fa, fb):
+        assert frame_a.keys() == frame_b.keys()
+        for key in frame_a:
+            assert frame_a[key].dtype == frame_b[key].dtype
+            assert np.array_equal(frame_a[key], frame_b[key]), key
+
+
+# ----------------------------------------------------------------------------- mechanics
+
+
+def test_output_folder_layout(tmp_path: Path, ballistic: None,
+                              capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    code, stdout, stderr = run_main(["--scene", str(scene), "--out", str(out),
+                                     "--frames", "4", "--device", "cpu"], capsys)
+    assert code == 0, stderr
+    assert "momentum drift" in stdout and "fractured" in stdout and "clamped" in stdout
+    assert load_scene(out / "scene.yaml") == replace(load_scene(scene), frames=4)
+    with np.load(out / "particles.npz") as particles:
+        assert set(particles.files) >= {"mass", "rest_volume", "obj_id", "part_id",
+                                        "is_surface", "rest_x", "gaussian_index"}
+        n = particles["mass"].shape[0]
+        assert particles["rest_x"].shape == (n, 3)
+    frames = frames_of(out)
+    assert len(frames) == 5
+    for frame in frames:
+        assert frame["x"].shape == (n, 3) and frame["x"].dtype == np.float32
+        assert frame["v"].shape == (n, 3) and frame["F_E"].shape == (n, 3, 3)
+        assert frame["alpha"].shape == (n,) and frame["fractured"].dtype == np.bool_
+        assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
+    with open(out / "diagnostics.csv") as handle:
+        header = next(csv.reader(handle))
+    assert header == ["frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic",
+                      "elastic", "gravitational", "total_energy", "fractured",
+                      "left_px", "left_py", "left_pz", "left_kinetic",
+                      "right_px", "right_py", "right_pz", "right_kinetic"]
+    table = read_diagnostics_csv(out / "diagnostics.csv")
+    assert table["frame"].tolist() == [0, 1, 2, 3, 4]
+    assert np.allclose(table["time"], 0.01 * np.arange(5))
+    assert (table["steps"][1:] > 0).all() and table["steps"][0] == 0
+    assert np.allclose(table["total_energy"],
+                       table["kinetic"] + table["elastic"] + table["gravitational"])
+    assert np.allclose(table["px"], table["left_px"] + table["right_px"])
+    # gravity: total z momentum falls by M g dt per frame
+    mass = np.load(out / "particles.npz")["mass"].astype(np.float64).sum()
+    assert np.allclose(np.diff(table["pz"]), -9.8 * 0.01 * mass, rtol=1e-4)
+    assert (out / "diagnostics.png").stat().st_size > 1000
+    assert not list(out.rglob(".*.tmp"))   # no temp files left behind
+
+
+def test_resume_equals_uninterrupted_run(tmp_path: Path, ballistic: None,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    straight, pieces = tmp_path / "straight", tmp_path / "pieces"
+    assert run_main(["--scene", str(scene), "--out", str(straight), "--frames", "6"],
+                    capsys)[0] == 0
+    assert run_main(["--scene", str(scene), "--out", str(pieces), "--frames", "3"],
+                    capsys)[0] == 0
+    code, stdout, _ = run_main(["--scene", str(scene), "--out", str(pieces), "--frames", "6",
+                                "--resume"], capsys)
+    assert code == 0
+    assert_same_frames(straight, pieces)
+    assert (straight / "diagnostics.csv").read_text() == (pieces / "diagnostics.csv").read_text()
+    assert load_scene(pieces / "scene.yaml").frames == 6
+    # resuming a finished run does nothing and succeeds
+    code, stdout, _ = run_main(["--scene", str(scene), "--out", str(pieces), "--resume"],
+                               capsys)
+    assert code == 0 and "nothing to simulate" in stdout
+
+
+def test_resume_after_kill_between_checkpoint_and_frame(
+        tmp_path: Path, ballistic: None, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    straight, killed = tmp_path / "straight", tmp_path / "killed"
+    run_main(["--scene", str(scene), "--out", str(straight), "--frames", "5"], capsys)
+    run_main(["--scene", str(scene), "--out", str(killed), "--frames", "3"], capsys)
+    # the checkpoint of frame 3 is written before frame 3's file: a kill in between leaves
+    # the checkpoint ahead of the frames
+    (killed / "frames" / "frame_00003.npz").unlink()
+    code, _, _ = run_main(["--scene", str(scene), "--out", str(killed), "--frames", "5",
+                           "--resume"], capsys)
+    assert code == 0
+    assert_same_frames(straight, killed)
+
+
+def test_resume_with_other_scene_is_rejected(tmp_path: Path, ballistic: None,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    run_main(["--scene", str(scene), "--out", str(out), "--frames", "2"], capsys)
+    changed = tiny_scene()
+    changed["objects"][1]["velocity"] = [-3, 0, 0]
+    other = write_scene(tmp_path / "other.yaml", changed)
+    code, _, stderr = run_main(["--scene", str(other), "--out", str(out), "--resume"], capsys)
+    assert code == 2
+    assert stderr.strip() == (f"error: --resume: the scene differs from {out / 'scene.yaml'} "
+                              "at 'objects[1].velocity[0]'")
+    assert len(frames_of(out)) == 3   # untouched
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(tmp_path / "empty"),
+                                "--resume"], capsys)
+    assert code == 2 and stderr.startswith("error: --resume: ") and "no run to resume" in stderr
+
+
+def test_blow_up_stops_with_exit_1_and_keeps_frames(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ballistic: None,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    original = BallisticSolver.advance
+    calls = {"n": 0}
+
+    def advance_then_nan(self: BallisticSolver, frame_dt: float) -> StepStats:
+        calls["n"] += 1
+        if calls["n"] == 3:   # frame 3 produces NaN
+            self.state.v = self.state.v.clone()
+            self.state.v[0, 0] = float("nan")
+        return original(self, frame_dt)
+
+    monkeypatch.setattr(BallisticSolver, "advance", advance_then_nan)
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(out)], capsys)
+    assert code == 1
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("error: simulation blew up while computing frame 3 (t = 0.02")
+    assert "frames 0..2" in lines[0]
+    frames = frames_of(out)
+    assert len(frames) == 3
+    for frame in frames:
+        assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
+    assert read_diagnostics_csv(out / "diagnostics.csv")["frame"].tolist() == [0, 1, 2]
+    assert (out / "diagnostics.png").exists()
+
+
+# ----------------------------------------------------------------------------- invalid input
+
+
+def _simulate_subprocess(args: list[str], cwd: Path, **kwargs: Any) -> subprocess.Popen[str]:
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.Popen([sys.executable, str(REPO / "simulate.py"), *args], cwd=cwd,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            **kwargs)
+
+
+INVALID_CHANGES = [
+    (("objects", 1, "materials", 0, "nu", 0.5),
+     "error: objects[1].materials[0].nu: 0.5 is not < 0.5"),
+    (("objects", 0, "velocty", [1, 0, 0]),
+     "error: objects[0].velocty: unknown key (did you mean 'velocity'?)"),
+    (("objects", 0, "transform", "translate", [0.95, 0.5, 0.5]),
+     "error: objects[0].transform: object 'left' reaches x = "),
+    (("domain", "grid", "big"), "error: domain.grid: expected an integer, got str 'big'"),
+    (("objects", 1, "materials", 0, "alpha0", -0.1),
+     "error: objects[1].materials[0].Jp0: give only one of 'alpha0' and 'Jp0'"),
+]
+
+
+def _invalid_scene(tmp_path: Path, change: tuple[Any, ...]) -> Path:
+    scene = tiny_scene()
+    node: Any = scene
+    for key in change[:-2]:
+        node = node[key]
+    node[change[-2]] = change[-1]
+    return write_scene(tmp_path / "bad.yaml", scene)
+
+
+@pytest.mark.parametrize("change,expected", INVALID_CHANGES)
+def test_invalid_scene_exits_2_with_one_line(tmp_path: Path, change: tuple[Any, ...],
+                                             expected: str,
+                                             capsys: pytest.CaptureFixture[str]) -> None:
+    path = _invalid_scene(tmp_path, change)
+    code, stdout, stderr = run_main(["--scene", str(path), "--out", str(tmp_path / "out")],
+                                    capsys)
+    assert code == 2
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(expected), stderr
+    assert stdout == ""
+    assert not (tmp_path / "out").exists()   # nothing was simulated or written
+
+
+def test_invalid_scene_through_the_script(tmp_path: Path) -> None:
+    """The real entry script: exit status 2, exactly one stderr line, no output folder."""
+    path = _invalid_scene(tmp_path, INVALID_CHANGES[0][0])
+    proc = _simulate_subprocess(["--scene", str(path), "--out", str(tmp_path / "out")],
+                                cwd=tmp_path)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 2, stderr
+    assert stderr == INVALID_CHANGES[0][1] + "\n"
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_missing_model_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    scene = tiny_scene()
+    del scene["objects"][0]["primitive"]
+    scene["objects"][0]["model"] = "output/no_such_model"
+    path = write_scene(tmp_path / "bad.yaml", scene)
+    code, _, stderr = run_main(["--scene", str(path), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2
+    assert stderr == "error: objects[0].model: 'output/no_such_model' does not exist\n"
+    code, _, stderr = run_main(["--scene", str(tmp_path / "none.yaml")], capsys)
+    assert code == 2 and stderr == f"error: {tmp_path / 'none.yaml'}: file not found\n"
+    code, _, stderr = run_main(["--scene", str(path), "--frames", "0"], capsys)
+    assert code == 2 and stderr == "error: --frames: 0 is not >= 1\n"
+
+
+# ----------------------------------------------------------------------------- real solver
+
+
+@needs_solver
+def test_real_solver_run_resume_and_blow_up(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                            capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    straight, pieces = tmp_path / "straight", tmp_path / "pieces"
+    code, stdout, stderr = run_main(["--scene", str(scene), "--out", str(straight),
+                                     "--frames", "3", "--device", "cpu"], capsys)
+    assert code == 0, stderr
+    frames = frames_of(straight)
+    assert len(frames) == 4
+    assert all(np.isfinite(f["x"]).all() and np.isfinite(f["F_E"]).all() for f in frames)
+    assert not np.array_equal(frames[0]["x"], frames[-1]["x"])   # something moved
+    table = read_diagnostics_csv(straight / "diagnostics.csv")
+    assert list(table) == diagnostics_columns(["left", "right"])
+    assert (table["steps"][1:] >= 1).all()
+
+    run_main(["--scene", str(scene), "--out", str(pieces), "--frames", "1"], capsys)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(pieces), "--frames", "3",
+                                "--resume"], capsys)
+    assert code == 0, stderr
+    assert_same_frames(straight, pieces)
+
+    from fracture_gs.mpm.solver import CollisionMPM
+    original = CollisionMPM.advance
+    calls = {"n": 0}
+
+    def failing_advance(self: Any, frame_dt: float) -> Any:
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise SimulationBlowUp("NaN in particle velocities")
+        return original(self, frame_dt)
+
+    monkeypatch.setattr(CollisionMPM, "advance", failing_advance)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(tmp_path / "boom"),
+                                "--frames", "3"], capsys)
+    assert code == 1
+    assert "blew up while computing frame 2" in stderr and "NaN in particle velocities" in stderr
+    kept = frames_of(tmp_path / "boom")
+    assert len(kept) == 2
+    for a, b in zip(kept, frames[:2]):
+        assert np.array_equal(a["x"], b["x"])
+
+
+@needs_solver
+def test_real_subprocess_kill_and_resume(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """SIGKILL a running simulate.py after a few frames; --resume gives the same frames."""
+    scene_dict = tiny_scene()
+    scene_dict["frames"] = 40
+    scene = write_scene(tmp_path / "tiny.yaml", scene_dict)
+    killed, straight = tmp_path / "killed", tmp_path / "straight"
+    proc = _simulate_subprocess(["--scene", str(scene), "--out", str(killed), "--device",
+                                 "cpu"], cwd=tmp_path)
+    deadline = time.monotonic() + 120
+    while not (killed / "frames" / "frame_00002.npz").exists():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate()
+    done = len(frames_of(killed))
+    target = min(done + 1, 40)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(killed), "--resume",
+                                "--frames", str(target)], capsys)
+    assert code == 0, stderr
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(straight),
+                                "--frames", str(target)], capsys)
+    assert code == 0, stderr
+    assert_same_frames(straight, killed)
+    assert not list(killed.rglob(".*.tmp"))
