@@ -21,10 +21,10 @@ def _config(seed: int) -> dict:
             "exclusive": (seed // 2) % 2 == 1, "view_rotations": seed % 3 == 0}
 
 
-def _render_both(scene: dict, camera: Camera, grads: bool = False):
+def _render_both(scene: dict, camera: Camera, reference_dtype: torch.dtype = torch.float64):
     means, opacities, kwargs = split(scene)
     cpp = rasterize(means, opacities, camera, backend="cpp", **kwargs)
-    ref_scene = {k: (v.double() if v.is_floating_point() else v) for k, v in scene.items()}
+    ref_scene = {k: (v.to(reference_dtype) if v.is_floating_point() else v) for k, v in scene.items()}
     means_r, opacities_r, kwargs_r = split(ref_scene)
     ref = rasterize_reference(means_r, opacities_r, camera, **kwargs_r)
     return cpp, ref
@@ -61,7 +61,9 @@ def _gradients(render, scene: dict, camera: Camera, weights) -> dict[str, torch.
     loss = ((out["rgb"].double() * weights[0]).sum() + (out["alpha"].double() * weights[1]).sum()
             + (out["depth"].double() * weights[2]).sum())
     loss.backward()
-    grads = {k: v.grad.double() for k, v in leaves.items()}
+    # An input the image does not depend on (view rotations of degree-0 SH) has no grad.
+    grads = {k: (torch.zeros_like(v) if v.grad is None else v.grad).double()
+             for k, v in leaves.items()}
     grads["means2d"] = out["means2d"].grad.double()
     return grads
 
@@ -80,7 +82,9 @@ def test_gradients_match_reference(seed: int) -> None:
     for name, g_ref in ref.items():
         g_cpp = cpp[name]
         scale = g_ref.abs().max().item()
-        assert scale > 0, name
+        if scale == 0:
+            assert g_cpp.abs().max() < 1e-6, name
+            continue
         significant = g_ref.abs() > 1e-2 * scale
         rel = ((g_cpp - g_ref).abs() / g_ref.abs())[significant]
         assert rel.max() <= 1e-3, f"{name}: max relative error {rel.max():.2e} ({config})"
@@ -173,9 +177,10 @@ def test_edge_cases_match_reference(case: str) -> None:
         camera = Camera(torch.eye(4), 20.0, 20.0, 0.5, 0.5, 1, 1, near=0.1)
     elif case == "odd_size":
         camera = Camera(torch.eye(4), 20.0, 20.0, 16.0, 3.0, 33, 7, near=0.1)
-    cpp, ref = _render_both(scene, camera)
+    # float32 reference: a mean exactly on the near plane must round the same way
+    cpp, ref = _render_both(scene, camera, torch.float32)
     for key in ("rgb", "alpha", "depth"):
-        assert (cpp[key].double() - ref[key]).abs().max() <= 1e-4, key
+        assert (cpp[key] - ref[key]).abs().max() <= 1e-4, key
     assert torch.equal(cpp["radii"], ref["radii"])
 
 

@@ -7,6 +7,7 @@
 #include <optional>
 #include <vector>
 
+#include "common/blend.h"
 #include "raster/raster_kernels.h"
 
 #ifdef FGS_WITH_CUDA

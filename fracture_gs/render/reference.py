@@ -115,7 +115,7 @@ def _blend(alpha: torch.Tensor, exclusive: torch.Tensor | None
         blended = used & (after >= TRANSMITTANCE_MIN)
     blended_alpha = torch.where(blended, alpha, torch.zeros_like(alpha))
     transmittance = torch.cumprod(1.0 - blended_alpha, dim=1)
-    ones = torch.ones_like(alpha[:, :1])
+    ones = torch.ones(alpha.shape[0], 1, dtype=alpha.dtype, device=alpha.device)
     before = torch.cat([ones, transmittance[:, :-1]], dim=1)
     final = torch.cat([ones, transmittance], dim=1)[:, -1]
     return blended_alpha * before, final
