@@ -1,10 +1,17 @@
 // CPU (OpenMP) kernels of the Gaussian rasterizer. Per-Gaussian work is a parallel loop over
 // Gaussians; binning sorts the visible Gaussians once by (depth, index) and fills the tile
-// lists in that order, so every tile list is sorted front to back; blending runs one tile
-// per task (dynamic schedule) with Gaussian-major loops over the tile's pixels, which
-// vectorise, and stops a tile once all its pixels are saturated. The backward walks each
-// tile's list in reverse and writes one gradient slot per (Gaussian, tile): no atomics,
-// deterministic for any thread count.
+// lists in that order, so every tile list is sorted front to back. Blending runs one tile per
+// task (dynamic schedule): the tile's Gaussians are gathered into a contiguous array, then
+// each pixel walks it front to back (cheap support-box rejection, early stop per pixel), like
+// one CUDA thread does. The backward walks each pixel's list in reverse and sums the pixel
+// gradients of each list entry in a tile-local buffer, written to that entry's
+// (Gaussian, tile) slot: no atomics, deterministic for any thread count.
+// The blending loops compute alphas for several Gaussians at once; GCC only vectorises
+// their selects (min, comparisons) when it may assume FP operations do not trap. No code
+// here relies on floating-point exception flags.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC optimize("no-trapping-math")
+#endif
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -25,16 +32,6 @@ inline uint32_t orderable_bits(float value) {
   uint32_t bits;
   std::memcpy(&bits, &value, sizeof(bits));
   return (bits & 0x80000000u) ? ~bits : (bits | 0x80000000u);
-}
-
-// Pixel columns/rows of a tile that a Gaussian's support box can reach (inclusive range,
-// relative to the tile origin); false if none. Conservative: floor of the box ends.
-inline bool tile_pixel_range(float centre, float extent, int origin, int size, int& lo, int& hi) {
-  const float a = std::floor(centre - extent) - (float)origin;
-  const float b = std::floor(centre + extent) - (float)origin;
-  lo = a > 0.f ? (int)a : 0;
-  hi = b < (float)(size - 1) ? (int)b : size - 1;
-  return lo <= hi;
 }
 
 struct TileGeometry {
@@ -99,73 +96,101 @@ void bin_cpu(const CameraParams& cam, int64_t num, const float* proj, const int3
   }
 }
 
+namespace {
+
+constexpr int kBatch = 8;  // alphas are computed for this many list entries at once (SIMD)
+
+// The Gaussians of one tile in list order as structure-of-arrays, padded to a multiple of
+// kBatch with fully transparent entries (each pixel of the tile walks this list).
+struct TileList {
+  std::vector<float> u, v, A, B, C, opacity, red, green, blue, depth;
+  std::vector<int32_t> exclusive, pos;
+  int32_t size = 0;
+
+  void gather(const TileBins& bins, int tile, const float* proj, const uint8_t* excl) {
+    const int32_t begin = bins.tile_start[tile];
+    size = bins.tile_start[tile + 1] - begin;
+    const size_t padded = (size_t)(size + kBatch - 1) / kBatch * kBatch;
+    for (auto* vec : {&u, &v, &A, &B, &C, &opacity, &red, &green, &blue, &depth})
+      vec->assign(padded, 0.f);
+    exclusive.assign(padded, 0);
+    pos.assign(padded, -1);
+    for (int32_t k = 0; k < size; ++k) {
+      const int32_t gid = bins.slot_gaussian[bins.tile_slots[begin + k]];
+      const float* g = proj + (int64_t)kProjStride * gid;
+      u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
+      opacity[k] = g[kOpacity]; red[k] = g[kRed]; green[k] = g[kGreen]; blue[k] = g[kBlue];
+      depth[k] = g[kDepth];
+      exclusive[k] = (excl && excl[gid]) ? 1 : 0;
+      pos[k] = k;
+    }
+  }
+};
+
+// Alphas (and Gaussian values) of kBatch consecutive row entries at one pixel centre.
+inline void batch_alpha(const TileList& row, int32_t first, float px, float py, float* alpha,
+                        float* gauss) {
+  const float* u = row.u.data() + first; const float* v = row.v.data() + first;
+  const float* A = row.A.data() + first; const float* B = row.B.data() + first;
+  const float* C = row.C.data() + first; const float* o = row.opacity.data() + first;
+#pragma omp simd
+  for (int k = 0; k < kBatch; ++k) {
+    float G;
+    alpha[k] = splat_alpha(u[k], v[k], A[k], B[k], C[k], o[k], px, py, G);
+    gauss[k] = G;
+  }
+}
+
+}  // namespace
+
 void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
                         const TileBins& bins, const float* background, float* rgb, float* alpha,
                         float* depth, const PixelState& state) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
-#pragma omp parallel for schedule(dynamic, 1)
-  for (int tile = 0; tile < num_tiles; ++tile) {
-    const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
-    alignas(64) float T[kTilePixels], acc_r[kTilePixels], acc_g[kTilePixels], acc_b[kTilePixels],
-        acc_d[kTilePixels];
-    alignas(64) int32_t n_contrib[kTilePixels], winner[kTilePixels], done[kTilePixels],
-        taken[kTilePixels];
-    for (int p = 0; p < kTilePixels; ++p) {
-      T[p] = 1.f; acc_r[p] = acc_g[p] = acc_b[p] = acc_d[p] = 0.f;
-      n_contrib[p] = 0; winner[p] = -1; taken[p] = 0;
-      done[p] = ((p % kTileSize) < geo.width && (p / kTileSize) < geo.height) ? 0 : 1;
-    }
-    int num_done = kTilePixels - geo.width * geo.height;
-    const int32_t begin = bins.tile_start[tile], end = bins.tile_start[tile + 1];
-    for (int32_t pos = 0; pos < end - begin && num_done < kTilePixels; ++pos) {
-      const int32_t gid = bins.slot_gaussian[bins.tile_slots[begin + pos]];
-      const float* g = proj + kProjStride * (int64_t)gid;
-      int c0, c1, r0, r1;
-      if (!tile_pixel_range(g[kU], g[kExtentX], geo.x0, geo.width, c0, c1) ||
-          !tile_pixel_range(g[kV], g[kExtentY], geo.y0, geo.height, r0, r1))
-        continue;
-      const float u = g[kU], v = g[kV], A = g[kConicA], B = g[kConicB], C = g[kConicC];
-      const float opacity = g[kOpacity], red = g[kRed], green = g[kGreen], blue = g[kBlue];
-      const float z = g[kDepth];
-      const int32_t excl = (exclusive && exclusive[gid]) ? 1 : 0;
-      int newly_done = 0;
-      for (int row = r0; row <= r1; ++row) {
+#pragma omp parallel
+  {
+    TileList list;
+#pragma omp for schedule(dynamic, 1)
+    for (int tile = 0; tile < num_tiles; ++tile) {
+      const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
+      list.gather(bins, tile, proj, exclusive);
+      for (int row = 0; row < geo.height; ++row) {
         const float py = (float)(geo.y0 + row) + 0.5f;
-#pragma omp simd reduction(+ : newly_done)
-        for (int col = c0; col <= c1; ++col) {
-          const int p = row * kTileSize + col;
-          float G;
-          const float a = splat_alpha(u, v, A, B, C, opacity, (float)(geo.x0 + col) + 0.5f, py, G);
-          const int32_t valid = (a >= kAlphaMin) & (done[p] == 0) & ((excl & taken[p]) == 0);
-          const float test_T = T[p] * (1.f - a);
-          const int32_t stop = valid & (test_T < kTransmittanceMin);
-          const int32_t blend = valid & (stop == 0);
-          const float w = blend ? a * T[p] : 0.f;
-          acc_r[p] += w * red; acc_g[p] += w * green; acc_b[p] += w * blue; acc_d[p] += w * z;
-          T[p] = blend ? test_T : T[p];
-          done[p] |= stop;
-          newly_done += stop;
-          n_contrib[p] = blend ? pos + 1 : n_contrib[p];
-          const int32_t won = blend & excl;
-          taken[p] |= won;
-          winner[p] = won ? pos : winner[p];
+        for (int col = 0; col < geo.width; ++col) {
+          const float px = (float)(geo.x0 + col) + 0.5f;
+          float T = 1.f, acc_r = 0.f, acc_g = 0.f, acc_b = 0.f, acc_d = 0.f;
+          int32_t n_contrib = 0, winner = -1;
+          bool taken = false, done = false;
+          for (int32_t first = 0; first < list.size && !done; first += kBatch) {
+            alignas(32) float a[kBatch], G[kBatch];
+            batch_alpha(list, first, px, py, a, G);
+            for (int k = 0; k < kBatch; ++k) {
+              if (a[k] < kAlphaMin) continue;
+              const int32_t e = first + k;
+              const bool excl = list.exclusive[e] != 0;
+              if (excl && taken) continue;
+              const float test_T = T * (1.f - a[k]);
+              if (test_T < kTransmittanceMin) { done = true; break; }
+              const float w = a[k] * T;
+              acc_r += w * list.red[e]; acc_g += w * list.green[e]; acc_b += w * list.blue[e];
+              acc_d += w * list.depth[e];
+              T = test_T;
+              n_contrib = list.pos[e] + 1;
+              if (excl) { taken = true; winner = list.pos[e]; }
+            }
+          }
+          const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
+          rgb[3 * pix] = acc_r + T * background[0];
+          rgb[3 * pix + 1] = acc_g + T * background[1];
+          rgb[3 * pix + 2] = acc_b + T * background[2];
+          alpha[pix] = 1.f - T;
+          depth[pix] = acc_d;
+          state.final_T[pix] = T;
+          state.n_contrib[pix] = n_contrib;
+          state.exclusive_winner[pix] = winner;
         }
       }
-      num_done += newly_done;
     }
-    for (int row = 0; row < geo.height; ++row)
-      for (int col = 0; col < geo.width; ++col) {
-        const int p = row * kTileSize + col;
-        const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
-        rgb[3 * pix] = acc_r[p] + T[p] * background[0];
-        rgb[3 * pix + 1] = acc_g[p] + T[p] * background[1];
-        rgb[3 * pix + 2] = acc_b[p] + T[p] * background[2];
-        alpha[pix] = 1.f - T[p];
-        depth[pix] = acc_d[p];
-        state.final_T[pix] = T[p];
-        state.n_contrib[pix] = n_contrib[p];
-        state.exclusive_winner[pix] = winner[p];
-      }
   }
 }
 
@@ -174,74 +199,57 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
                          const float* grad_rgb, const float* grad_alpha, const float* grad_depth,
                          float* slot_grads) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
-#pragma omp parallel for schedule(dynamic, 1)
-  for (int tile = 0; tile < num_tiles; ++tile) {
-    const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
-    // Per pixel: transmittance before the current entry, sum over later entries of
-    // w·(c·dL/dC + z·dL/dD), the background/alpha term T_N (bg·dL/dC - dL/dA).
-    alignas(64) float T[kTilePixels], later[kTilePixels], tail[kTilePixels], g_r[kTilePixels],
-        g_g[kTilePixels], g_b[kTilePixels], g_d[kTilePixels];
-    alignas(64) int32_t n_contrib[kTilePixels], winner[kTilePixels];
-    int32_t max_contrib = 0;
-    for (int p = 0; p < kTilePixels; ++p) {
-      const int row = p / kTileSize, col = p % kTileSize;
-      T[p] = 1.f; later[p] = tail[p] = g_r[p] = g_g[p] = g_b[p] = g_d[p] = 0.f;
-      n_contrib[p] = 0; winner[p] = -1;
-      if (row < geo.height && col < geo.width) {
-        const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
-        T[p] = state.final_T[pix];
-        g_r[p] = grad_rgb[3 * pix]; g_g[p] = grad_rgb[3 * pix + 1]; g_b[p] = grad_rgb[3 * pix + 2];
-        g_d[p] = grad_depth[pix];
-        tail[p] = T[p] * (background[0] * g_r[p] + background[1] * g_g[p] +
-                          background[2] * g_b[p] - grad_alpha[pix]);
-        n_contrib[p] = state.n_contrib[pix];
-        winner[p] = state.exclusive_winner[pix];
-        max_contrib = std::max(max_contrib, n_contrib[p]);
-      }
-    }
-    const int32_t begin = bins.tile_start[tile];
-    for (int32_t pos = max_contrib - 1; pos >= 0; --pos) {
-      const int32_t slot = bins.tile_slots[begin + pos];
-      const int32_t gid = bins.slot_gaussian[slot];
-      const float* g = proj + kProjStride * (int64_t)gid;
-      int c0, c1, r0, r1;
-      if (!tile_pixel_range(g[kU], g[kExtentX], geo.x0, geo.width, c0, c1) ||
-          !tile_pixel_range(g[kV], g[kExtentY], geo.y0, geo.height, r0, r1))
-        continue;
-      const float u = g[kU], v = g[kV], A = g[kConicA], B = g[kConicB], C = g[kConicC];
-      const float opacity = g[kOpacity], red = g[kRed], green = g[kGreen], blue = g[kBlue];
-      const float z = g[kDepth];
-      const int32_t excl = (exclusive && exclusive[gid]) ? 1 : 0;
-      float du = 0.f, dv = 0.f, dA = 0.f, dB = 0.f, dC = 0.f, dop = 0.f;
-      float dr = 0.f, dg = 0.f, db = 0.f, dz = 0.f;
-      for (int row = r0; row <= r1; ++row) {
+#pragma omp parallel
+  {
+    TileList list;
+    std::vector<float> tile_grads;  // kSlotStride per tile-list entry, summed over pixels
+#pragma omp for schedule(dynamic, 1)
+    for (int tile = 0; tile < num_tiles; ++tile) {
+      const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
+      const int32_t begin = bins.tile_start[tile], count = bins.tile_start[tile + 1] - begin;
+      tile_grads.assign((size_t)count * kSlotStride, 0.f);
+      list.gather(bins, tile, proj, exclusive);
+      // Pixels in a fixed order, each walking its list backwards: deterministic sums.
+      for (int row = 0; row < geo.height; ++row) {
         const float py = (float)(geo.y0 + row) + 0.5f;
-#pragma omp simd reduction(+ : du, dv, dA, dB, dC, dop, dr, dg, db, dz)
-        for (int col = c0; col <= c1; ++col) {
-          const int p = row * kTileSize + col;
+        for (int col = 0; col < geo.width; ++col) {
+          const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
           const float px = (float)(geo.x0 + col) + 0.5f;
-          float G;
-          const float a = splat_alpha(u, v, A, B, C, opacity, px, py, G);
-          const int32_t active = (pos < n_contrib[p]) & (a >= kAlphaMin) &
-                                 ((excl == 0) | (winner[p] == pos));
-          const float one_minus = 1.f - a;
-          const float T_before = T[p] / one_minus;
-          const float w = active ? a * T_before : 0.f;
-          const float shade = red * g_r[p] + green * g_g[p] + blue * g_b[p] + z * g_d[p];
-          const float g_alpha = active ? T_before * shade - (later[p] + tail[p]) / one_minus : 0.f;
-          float d[6] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
-          splat_alpha_backward(u, v, A, B, C, opacity, px, py, G, g_alpha, d);
-          du += d[0]; dv += d[1]; dA += d[2]; dB += d[3]; dC += d[4]; dop += d[5];
-          dr += w * g_r[p]; dg += w * g_g[p]; db += w * g_b[p]; dz += w * g_d[p];
-          later[p] += w * shade;
-          T[p] = active ? T_before : T[p];
+          const float g_r = grad_rgb[3 * pix], g_g = grad_rgb[3 * pix + 1];
+          const float g_b = grad_rgb[3 * pix + 2], g_d = grad_depth[pix];
+          float T = state.final_T[pix];
+          // T_N (bg·dL/dC - dL/dA): how the background and alpha outputs depend on T_N.
+          const float tail = T * (background[0] * g_r + background[1] * g_g +
+                                  background[2] * g_b - grad_alpha[pix]);
+          float later = 0.f;  // sum over later blended entries of w·(c·dL/dC + z·dL/dD)
+          const int32_t winner = state.exclusive_winner[pix], n_contrib = state.n_contrib[pix];
+          for (int32_t batch_end = n_contrib; batch_end > 0; batch_end -= kBatch) {
+            const int32_t first = batch_end >= kBatch ? batch_end - kBatch : 0;
+            alignas(32) float a[kBatch], G[kBatch];
+            batch_alpha(list, first, px, py, a, G);
+            for (int32_t e = batch_end - 1; e >= first; --e) {
+              const int k = e - first;
+              if (a[k] < kAlphaMin || (list.exclusive[e] != 0 && winner != list.pos[e])) continue;
+              const float one_minus = 1.f - a[k];
+              const float T_before = T / one_minus;
+              const float w = a[k] * T_before;
+              const float shade = list.red[e] * g_r + list.green[e] * g_g + list.blue[e] * g_b +
+                                  list.depth[e] * g_d;
+              const float g_alpha = T_before * shade - (later + tail) / one_minus;
+              float* out = &tile_grads[(size_t)list.pos[e] * kSlotStride];
+              splat_alpha_backward(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
+                                   list.opacity[e], px, py, G[k], g_alpha, out);
+              out[kGradRed] += w * g_r; out[kGradGreen] += w * g_g; out[kGradBlue] += w * g_b;
+              out[kGradDepth] += w * g_d;
+              later += w * shade;
+              T = T_before;
+            }
+          }
         }
       }
-      float* out = slot_grads + (int64_t)kSlotStride * slot;
-      out[kGradU] = du; out[kGradV] = dv;
-      out[kGradConicA] = dA; out[kGradConicB] = dB; out[kGradConicC] = dC;
-      out[kGradOpacity] = dop;
-      out[kGradRed] = dr; out[kGradGreen] = dg; out[kGradBlue] = db; out[kGradDepth] = dz;
+      for (int32_t pos = 0; pos < count; ++pos)
+        std::memcpy(slot_grads + (int64_t)kSlotStride * bins.tile_slots[begin + pos],
+                    &tile_grads[(size_t)pos * kSlotStride], sizeof(float) * kSlotStride);
     }
   }
 }
