@@ -100,32 +100,86 @@ namespace {
 
 constexpr int kBatch = 8;  // alphas are computed for this many list entries at once (SIMD)
 
-// The Gaussians of one tile in list order as structure-of-arrays, padded to a multiple of
-// kBatch with fully transparent entries (each pixel of the tile walks this list).
+constexpr int kQuad = kTileSize / 2;  // pixels are processed in 8x8 quarters of a tile
+
+// Gaussians in list order as structure-of-arrays, padded to a multiple of kBatch with fully
+// transparent entries; pos is the position in the tile's list.
 struct TileList {
-  std::vector<float> u, v, A, B, C, opacity, red, green, blue, depth;
+  std::vector<float> u, v, A, B, C, opacity, red, green, blue, depth, ex, ey;
   std::vector<int32_t> exclusive, pos;
   int32_t size = 0;
 
+  // All Gaussians of a tile.
   void gather(const TileBins& bins, int tile, const float* proj, const uint8_t* excl) {
     const int32_t begin = bins.tile_start[tile];
-    size = bins.tile_start[tile + 1] - begin;
-    const size_t padded = (size_t)(size + kBatch - 1) / kBatch * kBatch;
-    for (auto* vec : {&u, &v, &A, &B, &C, &opacity, &red, &green, &blue, &depth})
-      vec->assign(padded, 0.f);
-    exclusive.assign(padded, 0);
-    pos.assign(padded, -1);
+    reset(bins.tile_start[tile + 1] - begin);
+    constexpr int32_t kAhead = 8;  // two-stage software prefetch of the random-order reads
     for (int32_t k = 0; k < size; ++k) {
+      if (k + 2 * kAhead < size) __builtin_prefetch(bins.slot_gaussian + bins.tile_slots[begin + k + 2 * kAhead]);
+      if (k + kAhead < size)
+        __builtin_prefetch(proj + (int64_t)kProjStride * bins.slot_gaussian[bins.tile_slots[begin + k + kAhead]]);
       const int32_t gid = bins.slot_gaussian[bins.tile_slots[begin + k]];
       const float* g = proj + (int64_t)kProjStride * gid;
       u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
       opacity[k] = g[kOpacity]; red[k] = g[kRed]; green[k] = g[kGreen]; blue[k] = g[kBlue];
-      depth[k] = g[kDepth];
+      depth[k] = g[kDepth]; ex[k] = g[kExtentX]; ey[k] = g[kExtentY];
       exclusive[k] = (excl && excl[gid]) ? 1 : 0;
       pos[k] = k;
     }
+    pad();
+  }
+
+  // The Gaussians of a tile list whose support box reaches a pixel-centre rectangle (the
+  // others have alpha < 1/255 on all of it).
+  void select(const TileList& tile, float x_lo, float x_hi, float y_lo, float y_hi) {
+    reset(tile.size);
+    int32_t n = 0;
+    for (int32_t k = 0; k < tile.size; ++k) {
+      if (!(tile.u[k] + tile.ex[k] >= x_lo && tile.u[k] - tile.ex[k] <= x_hi &&
+            tile.v[k] + tile.ey[k] >= y_lo && tile.v[k] - tile.ey[k] <= y_hi))
+        continue;
+      u[n] = tile.u[k]; v[n] = tile.v[k]; A[n] = tile.A[k]; B[n] = tile.B[k];
+      C[n] = tile.C[k]; opacity[n] = tile.opacity[k]; red[n] = tile.red[k];
+      green[n] = tile.green[k]; blue[n] = tile.blue[k]; depth[n] = tile.depth[k];
+      ex[n] = tile.ex[k]; ey[n] = tile.ey[k]; exclusive[n] = tile.exclusive[k];
+      pos[n] = tile.pos[k];
+      ++n;
+    }
+    size = n;
+    pad();
+  }
+
+ private:
+  void reset(int32_t count) {
+    size = count;
+    const size_t padded = (size_t)(count + kBatch - 1) / kBatch * kBatch;
+    for (auto* vec : {&u, &v, &A, &B, &C, &opacity, &red, &green, &blue, &depth, &ex, &ey})
+      if (vec->size() < padded) vec->resize(padded);
+    if (exclusive.size() < padded) { exclusive.resize(padded); pos.resize(padded); }
+  }
+  void pad() {  // transparent entries up to the next multiple of kBatch
+    for (int32_t k = size; k % kBatch; ++k) {
+      u[k] = v[k] = A[k] = B[k] = C[k] = opacity[k] = 0.f;
+      red[k] = green[k] = blue[k] = depth[k] = ex[k] = ey[k] = 0.f;
+      exclusive[k] = 0;
+      pos[k] = -1;
+    }
   }
 };
+
+// Calls fn(quarter_list, row, col) for every pixel of a tile, quarter by quarter.
+template <typename PixelFn>
+inline void for_each_pixel(const TileGeometry& geo, const TileList& tile, TileList& quarter,
+                           PixelFn&& fn) {
+  for (int qy = 0; qy < geo.height; qy += kQuad)
+    for (int qx = 0; qx < geo.width; qx += kQuad) {
+      const int rows = std::min(kQuad, geo.height - qy), cols = std::min(kQuad, geo.width - qx);
+      quarter.select(tile, (float)(geo.x0 + qx) + 0.5f, (float)(geo.x0 + qx + cols) - 0.5f,
+                     (float)(geo.y0 + qy) + 0.5f, (float)(geo.y0 + qy + rows) - 0.5f);
+      for (int row = qy; row < qy + rows; ++row)
+        for (int col = qx; col < qx + cols; ++col) fn(quarter, row, col);
+    }
+}
 
 // Alphas (and Gaussian values) of kBatch consecutive row entries at one pixel centre.
 inline void batch_alpha(const TileList& row, int32_t first, float px, float py, float* alpha,
@@ -149,15 +203,13 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
   const int num_tiles = bins.tiles_x * bins.tiles_y;
 #pragma omp parallel
   {
-    TileList list;
+    TileList tile_list, quarter;
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
-      list.gather(bins, tile, proj, exclusive);
-      for (int row = 0; row < geo.height; ++row) {
-        const float py = (float)(geo.y0 + row) + 0.5f;
-        for (int col = 0; col < geo.width; ++col) {
-          const float px = (float)(geo.x0 + col) + 0.5f;
+      tile_list.gather(bins, tile, proj, exclusive);
+      for_each_pixel(geo, tile_list, quarter, [&](const TileList& list, int row, int col) {
+          const float px = (float)(geo.x0 + col) + 0.5f, py = (float)(geo.y0 + row) + 0.5f;
           float T = 1.f, acc_r = 0.f, acc_g = 0.f, acc_b = 0.f, acc_d = 0.f;
           int32_t n_contrib = 0, winner = -1;
           bool taken = false, done = false;
@@ -188,8 +240,7 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
           state.final_T[pix] = T;
           state.n_contrib[pix] = n_contrib;
           state.exclusive_winner[pix] = winner;
-        }
-      }
+      });
     }
   }
 }
@@ -201,20 +252,18 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
   const int num_tiles = bins.tiles_x * bins.tiles_y;
 #pragma omp parallel
   {
-    TileList list;
+    TileList tile_list, quarter;
     std::vector<float> tile_grads;  // kSlotStride per tile-list entry, summed over pixels
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
       const int32_t begin = bins.tile_start[tile], count = bins.tile_start[tile + 1] - begin;
       tile_grads.assign((size_t)count * kSlotStride, 0.f);
-      list.gather(bins, tile, proj, exclusive);
+      tile_list.gather(bins, tile, proj, exclusive);
       // Pixels in a fixed order, each walking its list backwards: deterministic sums.
-      for (int row = 0; row < geo.height; ++row) {
-        const float py = (float)(geo.y0 + row) + 0.5f;
-        for (int col = 0; col < geo.width; ++col) {
+      for_each_pixel(geo, tile_list, quarter, [&](const TileList& list, int row, int col) {
           const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
-          const float px = (float)(geo.x0 + col) + 0.5f;
+          const float px = (float)(geo.x0 + col) + 0.5f, py = (float)(geo.y0 + row) + 0.5f;
           const float g_r = grad_rgb[3 * pix], g_g = grad_rgb[3 * pix + 1];
           const float g_b = grad_rgb[3 * pix + 2], g_d = grad_depth[pix];
           float T = state.final_T[pix];
@@ -223,7 +272,10 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
                                   background[2] * g_b - grad_alpha[pix]);
           float later = 0.f;  // sum over later blended entries of w·(c·dL/dC + z·dL/dD)
           const int32_t winner = state.exclusive_winner[pix], n_contrib = state.n_contrib[pix];
-          for (int32_t batch_end = n_contrib; batch_end > 0; batch_end -= kBatch) {
+          // entries with tile-list position < n_contrib (pos increases along the list)
+          const int32_t end = (int32_t)(std::lower_bound(list.pos.begin(), list.pos.begin() + list.size,
+                                                         n_contrib) - list.pos.begin());
+          for (int32_t batch_end = end; batch_end > 0; batch_end -= kBatch) {
             const int32_t first = batch_end >= kBatch ? batch_end - kBatch : 0;
             alignas(32) float a[kBatch], G[kBatch];
             batch_alpha(list, first, px, py, a, G);
@@ -245,8 +297,7 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
               T = T_before;
             }
           }
-        }
-      }
+      });
       for (int32_t pos = 0; pos < count; ++pos)
         std::memcpy(slot_grads + (int64_t)kSlotStride * bins.tile_slots[begin + pos],
                     &tile_grads[(size_t)pos * kSlotStride], sizeof(float) * kSlotStride);
