@@ -25,7 +25,10 @@ namespace fgs {
 namespace raster {
 namespace {
 
-constexpr int kTilePixels = kTileSize * kTileSize;
+// Below these sizes the OpenMP fork/join (and thread wake-up on a busy machine) costs more
+// than the work, so the loops run on the calling thread.
+constexpr int64_t kParallelGaussians = 8192;
+constexpr int kParallelTiles = 8;
 
 // Order-preserving map of a float to an unsigned integer (for sort keys).
 inline uint32_t orderable_bits(float value) {
@@ -51,7 +54,7 @@ inline TileGeometry tile_geometry(const CameraParams& cam, int tiles_x, int tile
 
 void preprocess_cpu(const CameraParams& cam, const GaussianInputs& in, float* proj, int32_t* rect,
                     int32_t* radii, int32_t* tiles_touched) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (in.num >= kParallelGaussians)
   for (int64_t i = 0; i < in.num; ++i) preprocess_one(cam, in, i, proj, rect, radii, tiles_touched);
 }
 
@@ -201,7 +204,7 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
                         const TileBins& bins, const float* background, float* rgb, float* alpha,
                         float* depth, const PixelState& state) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
-#pragma omp parallel
+#pragma omp parallel if (num_tiles >= kParallelTiles)
   {
     TileList tile_list, quarter;
 #pragma omp for schedule(dynamic, 1)
@@ -250,7 +253,7 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
                          const float* grad_rgb, const float* grad_alpha, const float* grad_depth,
                          float* slot_grads) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
-#pragma omp parallel
+#pragma omp parallel if (num_tiles >= kParallelTiles)
   {
     TileList tile_list, quarter;
     std::vector<float> tile_grads;  // kSlotStride per tile-list entry, summed over pixels
@@ -309,7 +312,7 @@ void preprocess_backward_cpu(const CameraParams& cam, const GaussianInputs& in, 
                              const int64_t* slot_offset, const float* slot_grads,
                              const GaussianGrads& grads) {
   (void)proj;
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (in.num >= kParallelGaussians)
   for (int64_t i = 0; i < in.num; ++i) preprocess_backward_one(cam, in, i, slot_offset, slot_grads, grads);
 }
 
