@@ -1,11 +1,14 @@
 // CPU (OpenMP) kernels of the Gaussian rasterizer. Per-Gaussian work is a parallel loop over
 // Gaussians; binning sorts the visible Gaussians once by (depth, index) and fills the tile
 // lists in that order, so every tile list is sorted front to back. Blending runs one tile per
-// task (dynamic schedule): the tile's Gaussians are gathered into a contiguous array, then
-// each pixel walks it front to back (cheap support-box rejection, early stop per pixel), like
-// one CUDA thread does. The backward walks each pixel's list in reverse and sums the pixel
-// gradients of each list entry in a tile-local buffer, written to that entry's
-// (Gaussian, tile) slot: no atomics, deterministic for any thread count.
+// task (dynamic schedule): the tile's Gaussians are gathered into a structure-of-arrays list,
+// each 8x8 quarter of the tile keeps the entries whose support box reaches it, and every
+// pixel walks that list front to back, computing alphas 8 entries at a time (SIMD) and
+// blending sequentially until it saturates (like one CUDA thread). The backward walks each
+// pixel's list in reverse and sums the pixel gradients of each list entry in a tile-local
+// buffer, written to that entry's (Gaussian, tile) slot: no atomics, and the same bits for
+// any thread count.
+
 // The blending loops compute alphas for several Gaussians at once; GCC only vectorises
 // their selects (min, comparisons) when it may assume FP operations do not trap. No code
 // here relies on floating-point exception flags.
@@ -184,18 +187,23 @@ inline void for_each_pixel(const TileGeometry& geo, const TileList& tile, TileLi
     }
 }
 
-// Alphas (and Gaussian values) of kBatch consecutive row entries at one pixel centre.
-inline void batch_alpha(const TileList& row, int32_t first, float px, float py, float* alpha,
-                        float* gauss) {
+// Alphas (and Gaussian values) of kBatch consecutive list entries at one pixel centre;
+// returns how many of them reach 1/255 (0 lets the caller skip the batch without branches
+// per entry).
+inline int batch_alpha(const TileList& row, int32_t first, float px, float py, float* alpha,
+                       float* gauss) {
   const float* u = row.u.data() + first; const float* v = row.v.data() + first;
   const float* A = row.A.data() + first; const float* B = row.B.data() + first;
   const float* C = row.C.data() + first; const float* o = row.opacity.data() + first;
-#pragma omp simd
+  int reaching = 0;
+#pragma omp simd reduction(+ : reaching)
   for (int k = 0; k < kBatch; ++k) {
     float G;
     alpha[k] = splat_alpha(u[k], v[k], A[k], B[k], C[k], o[k], px, py, G);
     gauss[k] = G;
+    reaching += alpha[k] >= kAlphaMin ? 1 : 0;
   }
+  return reaching;
 }
 
 }  // namespace
@@ -218,7 +226,7 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
           bool taken = false, done = false;
           for (int32_t first = 0; first < list.size && !done; first += kBatch) {
             alignas(32) float a[kBatch], G[kBatch];
-            batch_alpha(list, first, px, py, a, G);
+            if (batch_alpha(list, first, px, py, a, G) == 0) continue;
             for (int k = 0; k < kBatch; ++k) {
               if (a[k] < kAlphaMin) continue;
               const int32_t e = first + k;
@@ -281,7 +289,7 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
           for (int32_t batch_end = end; batch_end > 0; batch_end -= kBatch) {
             const int32_t first = batch_end >= kBatch ? batch_end - kBatch : 0;
             alignas(32) float a[kBatch], G[kBatch];
-            batch_alpha(list, first, px, py, a, G);
+            if (batch_alpha(list, first, px, py, a, G) == 0) continue;
             for (int32_t e = batch_end - 1; e >= first; --e) {
               const int k = e - first;
               if (a[k] < kAlphaMin || (list.exclusive[e] != 0 && winner != list.pos[e])) continue;
