@@ -11,7 +11,7 @@
 #include "raster/raster_kernels.h"
 
 #ifdef FGS_WITH_CUDA
-#include <ATen/cuda/CUDAContext.h>
+#include <c10/cuda/CUDAStream.h>
 #endif
 
 namespace fgs {
@@ -99,7 +99,7 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
 }
 
 #ifdef FGS_WITH_CUDA
-void* current_stream() { return (void*)at::cuda::getCurrentCUDAStream().stream(); }
+void* current_stream() { return (void*)c10::cuda::getCurrentCUDAStream().stream(); }
 #endif
 
 // Returns (rgb, alpha, depth, radii, proj, slot_offset, tile_start, tile_slots,
