@@ -136,7 +136,8 @@ size_t slot_offsets_scratch_bytes_cuda(int64_t num) {
   size_t temp = 0;
   cub::DeviceScan::ExclusiveSum(nullptr, temp, (const int64_t*)nullptr, (int64_t*)nullptr,
                                 (int)(num + 1));
-  return 256 + ((temp + 255) / 256) * 256 + (size_t)(num + 1) * sizeof(int64_t);
+  // 256 bytes of alignment slack for the base, each part rounded up to 256 bytes.
+  return 256 + ((temp + 255) / 256) * 256 + ((size_t)(num + 1) * sizeof(int64_t) + 255) / 256 * 256;
 }
 
 int64_t slot_offsets_cuda(int64_t num, const int32_t* tiles_touched, int64_t* slot_offset,
