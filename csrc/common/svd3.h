@@ -211,12 +211,16 @@ HOST_DEVICE inline void svd3(const double F[9], double U[9], double sigma[3], do
     if (sweep >= 2) {
       // Converged when the off-diagonal is below 1e-8 of the deviatoric part of S (the
       // eigenvectors are then good to ~1e-8 of what matters for stress and reconstruction)
-      // or below 1e-15 tr S (round-off level).
-      const double off = s[0][1] * s[0][1] + s[1][2] * s[1][2] + s[0][2] * s[0][2];
+      // and every s_pq is below 1e-8 sqrt(s_pp s_qq) (keeps the directions of tiny singular
+      // values accurate), or when it is at the round-off level 1e-15 tr S.
+      const double s01 = s[0][1] * s[0][1], s12 = s[1][2] * s[1][2], s02 = s[0][2] * s[0][2];
+      const double off = s01 + s12 + s02;
       const double m = tr * (1.0 / 3.0);
       const double dev = (s[0][0] - m) * (s[0][0] - m) + (s[1][1] - m) * (s[1][1] - m) +
                          (s[2][2] - m) * (s[2][2] - m);
-      if (off <= 1e-16 * dev || off <= 1e-30 * tr * tr) break;
+      const bool relative = off <= 1e-16 * dev && s01 <= 1e-16 * s[0][0] * s[1][1] &&
+                            s12 <= 1e-16 * s[1][1] * s[2][2] && s02 <= 1e-16 * s[0][0] * s[2][2];
+      if (relative || off <= 1e-30 * tr * tr) break;
     }
   }
   quat_to_matrix(quat, V);
