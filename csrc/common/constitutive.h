@@ -49,6 +49,13 @@ HOST_DEVICE inline double hencky(double s) {
   return log(a > kMinSingularValue ? a : kMinSingularValue);
 }
 
+// sinh(x) for x > 0 from one exp (~1e-16 (1 + sinh x) absolute error: all that p0 needs, as it
+// adds a 1e-5 floor), about half the cost of sinh().
+HOST_DEVICE inline double sinh_nonnegative(double x) {
+  const double e = exp(x);
+  return 0.5 * (e - 1.0 / e);
+}
+
 // R = U diag(d) W^T (double, row-major, singular vectors as columns).
 HOST_DEVICE inline void compose(const double U[9], const double d[3], const double W[9], double R[9]) {
   for (int i = 0; i < 3; ++i)
@@ -57,15 +64,28 @@ HOST_DEVICE inline void compose(const double U[9], const double d[3], const doub
                      U[3 * i + 2] * d[2] * W[3 * j + 2];
 }
 
-// tau = U diag(2 mu eps + lambda (sum eps)) U^T.
+// tau = U diag(2 mu eps + lambda (sum eps)) U^T (symmetric: 6 entries computed).
 HOST_DEVICE inline void kirchhoff_from_strain(double mu, double lambda, const double U[9],
                                               const double eps[3], float tau[9]) {
   const double tr = eps[0] + eps[1] + eps[2];
-  const double d[3] = {2.0 * mu * eps[0] + lambda * tr, 2.0 * mu * eps[1] + lambda * tr,
-                       2.0 * mu * eps[2] + lambda * tr};
-  double T[9];
-  compose(U, d, U, T);
-  for (int i = 0; i < 9; ++i) tau[i] = static_cast<float>(T[i]);
+  const double d0 = 2.0 * mu * eps[0] + lambda * tr, d1 = 2.0 * mu * eps[1] + lambda * tr,
+               d2 = 2.0 * mu * eps[2] + lambda * tr;
+  for (int i = 0; i < 3; ++i) {
+    const double a0 = U[3 * i] * d0, a1 = U[3 * i + 1] * d1, a2 = U[3 * i + 2] * d2;
+    for (int j = i; j < 3; ++j) {
+      const float t = static_cast<float>(a0 * U[3 * j] + a1 * U[3 * j + 1] + a2 * U[3 * j + 2]);
+      tau[3 * i + j] = t;
+      tau[3 * j + i] = t;
+    }
+  }
+}
+
+// Hencky strains eps_i = ln max(|sigma_i|, 1e-4) of the singular values of the float F.
+HOST_DEVICE inline void principal_strain(const float F[9], double U[9], double eps[3], double V[9]) {
+  double Fd[9], s[3];
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
+  svd3(Fd, U, s, V);
+  for (int i = 0; i < 3; ++i) eps[i] = hencky(s[i]);
 }
 
 HOST_DEVICE inline void fill_nan(float F[9], float* alpha, float tau[9]) {
@@ -93,11 +113,8 @@ HOST_DEVICE inline void hencky_kirchhoff(float mu, float lambda, const float U[9
 // Kirchhoff stress tau(F) of the Hencky StVK model with the mu, lambda of a table row
 // (any model: the elasticity is the same).
 HOST_DEVICE inline void kirchhoff_stress(const float* mat_row, const float F[9], float tau[9]) {
-  double Fd[9], U[9], s[3], V[9];
-  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
-  svd3(Fd, U, s, V);
-  const double eps[3] = {constitutive_detail::hencky(s[0]), constitutive_detail::hencky(s[1]),
-                         constitutive_detail::hencky(s[2])};
+  double U[9], eps[3], V[9];
+  constitutive_detail::principal_strain(F, U, eps, V);
   constitutive_detail::kirchhoff_from_strain(mat_row[kMatMu], mat_row[kMatLambda], U, eps, tau);
 }
 
@@ -115,29 +132,30 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
   const double beta = mat_row[kMatBeta], xi = mat_row[kMatXi], M = mat_row[kMatM];
   double a = *alpha;
 
-  double Fd[9], U[9], s[3], V[9];
-  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
-  svd3(Fd, U, s, V);
-  const double eps[3] = {hencky(s[0]), hencky(s[1]), hencky(s[2])};
+  double U[9], eps[3], V[9];
+  constitutive_detail::principal_strain(F, U, eps, V);
   const double e = eps[0] + eps[1] + eps[2];
   const double dev[3] = {eps[0] - e / 3.0, eps[1] - e / 3.0, eps[2] - e / 3.0};
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
 
   const double softened = (-a > 0.0) ? -a : 0.0;  // max(-alpha, 0)
-  const double p0 = K * (kNaccP0Floor + sinh(xi * softened));
+  const double p0 = K * (kNaccP0Floor + (softened > 0.0 ? constitutive_detail::sinh_nonnegative(xi * softened) : 0.0));
   const double p = -K * e;
   const double q = sqrt(1.5) * 2.0 * mu * dev_norm;
 
   double eps_new[3];
   bool projected = true;
+  bool tip = false;
   if (p > p0) {  // compression tip
     const double e_new = -p0 / K;
     for (int i = 0; i < 3; ++i) eps_new[i] = e_new / 3.0;
     a += e - e_new;
+    tip = true;
   } else if (p < -beta * p0) {  // tension tip: cohesion lost
     const double e_new = beta * p0 / K;
     for (int i = 0; i < 3; ++i) eps_new[i] = e_new / 3.0;
     a += e - e_new;
+    tip = true;
   } else {
     const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
     if (y > kNaccYieldTol * K * K) {
@@ -159,7 +177,8 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
   }
 
   if (projected) {
-    const double d[3] = {exp(eps_new[0]), exp(eps_new[1]), exp(eps_new[2])};
+    const double d0 = exp(eps_new[0]);  // tips: all three equal, one exp
+    const double d[3] = {d0, tip ? d0 : exp(eps_new[1]), tip ? d0 : exp(eps_new[2])};
     double R[9];
     constitutive_detail::compose(U, d, V, R);
     for (int i = 0; i < 9; ++i) F[i] = static_cast<float>(R[i]);
@@ -186,11 +205,8 @@ HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], fl
 // Elastic energy density per unit rest volume: psi = mu |eps|^2 + lambda/2 (tr eps)^2,
 // eps = ln max(|sigma|, 1e-4) (same for every model).
 HOST_DEVICE inline float elastic_energy_density(const float* mat_row, const float F[9]) {
-  double Fd[9], U[9], s[3], V[9];
-  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
-  svd3(Fd, U, s, V);
-  const double eps[3] = {constitutive_detail::hencky(s[0]), constitutive_detail::hencky(s[1]),
-                         constitutive_detail::hencky(s[2])};
+  double U[9], eps[3], V[9];
+  constitutive_detail::principal_strain(F, U, eps, V);
   const double tr = eps[0] + eps[1] + eps[2];
   const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda];
   return static_cast<float>(mu * (eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]) +
