@@ -180,6 +180,22 @@ def test_g2p_and_return_map_match_reference(seed):
     for name, a, b in zip(names, out[:6], twin[:6]):
         assert rel_err(a, b) < REL_TOL, name
     assert torch.equal(out[6], twin[6])
-    assert out[7] == twin[7]
+    assert out[7].clamped == twin[7].clamped and out[7].first_nonfinite == twin[7].first_nonfinite == -1
+    assert abs(out[7].max_speed - twin[7].max_speed) <= REL_TOL * twin[7].max_speed
     # The return map really ran: some particles changed their hardening state.
     assert bool((out[4] != alpha).any())
+
+
+def test_g2p_reports_the_first_non_finite_particle():
+    geometry, p, gen = random_setup(0, n=500)
+    bins, fields = contact_grids(0, geometry)
+    n = p["x"].shape[0]
+    table = material_table()
+    material_id = torch.zeros(n, dtype=torch.int32)
+    F_E = torch.eye(3).repeat(n, 1, 1)
+    F_E[123, 0, 0] = float("nan")
+    F_E[321, 1, 1] = float("inf")
+    args = (p["x"], F_E, torch.zeros(n), torch.zeros(n, dtype=torch.bool), p["grid_id"], material_id, table)
+    compiled = ops.g2p(*args, fields, geometry, 1e-4, backend="cpp")[7]
+    twin = ops.g2p(*args, fields, geometry, 1e-4, backend="reference")[7]
+    assert compiled.first_nonfinite == twin.first_nonfinite == 123

@@ -42,6 +42,27 @@ struct G2POutputs {
   uint8_t* fractured;
 };
 
+// Health of the particles after G2P, reduced over all particles (order-independent).
+struct G2PStats {
+  long long clamped;          // positions clamped into the domain
+  long long first_nonfinite;  // smallest index with a non-finite x, v or F_E; -1 if none
+  float max_speed;            // largest |v|
+};
+
+// True if particle q's new position, velocity and deformation gradient are all finite.
+HOST_DEVICE inline bool particle_is_finite(long long q, const G2POutputs& out) {
+  float sum = 0.f;  // NaN or Inf anywhere makes the sum non-finite
+  for (int d = 0; d < 3; ++d) sum += out.x[3 * q + d] * 0.f + out.v[3 * q + d] * 0.f;
+  for (int i = 0; i < 9; ++i) sum += out.F_E[9 * q + i] * 0.f;
+  return sum == 0.f;
+}
+
+// Squared speed of particle q after G2P.
+HOST_DEVICE inline float particle_speed_sq(long long q, const G2POutputs& out) {
+  const float* v = out.v + 3 * q;
+  return v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+}
+
 // Grid update of one node: velocity = momentum / mass + dt g, or zero without mass.
 HOST_DEVICE inline void grid_node_velocity(float mass, const float* momentum, float dt, const float* gravity,
                                            float mass_eps, float* velocity) {

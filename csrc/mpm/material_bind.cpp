@@ -9,7 +9,7 @@
 #ifdef FGS_WITH_CUDA
 #include <c10/cuda/CUDAException.h>
 #include <c10/cuda/CUDAGuard.h>
-#include <c10/cuda/CUDAStream.h>
+#include "bind_utils.h"
 #endif
 
 namespace fgs {
@@ -40,9 +40,6 @@ void check_table(const torch::Tensor& table, const torch::Tensor& material_id, i
                     "material_table and material_id must be on ", device);
 }
 
-#ifdef FGS_WITH_CUDA
-void* current_stream() { return static_cast<void*>(c10::cuda::getCurrentCUDAStream().stream()); }
-#endif
 
 std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
     const torch::Tensor& F_trial, const torch::Tensor& alpha, const torch::Tensor& material_table,
@@ -68,7 +65,7 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
     constitutive_update_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(),
                              table.data_ptr<float>(), table.size(0), ids.data_ptr<int32_t>(),
                              F_out.data_ptr<float>(), alpha_out.data_ptr<float>(),
-                             tau.data_ptr<float>(), current_stream());
+                             tau.data_ptr<float>(), current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "constitutive_update: fracture_gs._C was built without CUDA");
@@ -97,7 +94,7 @@ torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& m
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
     elastic_energy_cuda(n, F_in.data_ptr<float>(), table.data_ptr<float>(), table.size(0),
-                        ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_stream());
+                        ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "elastic_energy: fracture_gs._C was built without CUDA");
@@ -123,7 +120,7 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torc
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
     svd3_batch_cuda(n, F_in.data_ptr<float>(), U.data_ptr<float>(), sigma.data_ptr<float>(),
-                    V.data_ptr<float>(), current_stream());
+                    V.data_ptr<float>(), current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "svd3_batch: fracture_gs._C was built without CUDA");

@@ -2,13 +2,17 @@
 // The kernels themselves (mpm_cpu.cpp, mpm_cuda.cu) never see a torch type.
 #include "mpm/mpm_bind.h"
 
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <tuple>
 #include <vector>
 
 #include "common/constitutive.h"
 #include "mpm/mpm_kernels.h"
 
 #ifdef FGS_WITH_CUDA
-#include <ATen/cuda/CUDAContext.h>
+#include "bind_utils.h"
 #endif
 
 namespace fgs {
@@ -58,9 +62,6 @@ GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor&
   return g;
 }
 
-#ifdef FGS_WITH_CUDA
-void* current_stream() { return (void*)at::cuda::getCurrentCUDAStream().stream(); }
-#endif
 
 // Sorts particles into blocks (CPU). Returns (order, cell_start, cell_key, color_cells,
 // color_start, touched, contact_blocks) as int32 tensors.
@@ -113,7 +114,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
     return;
   }
 #ifdef FGS_WITH_CUDA
-  p2g_cuda(view, p, geo, (float)dt, grid, current_stream());
+  p2g_cuda(view, p, geo, (float)dt, grid, current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -136,7 +137,7 @@ void grid_update(const Tensor& touched, const std::vector<double>& lower, double
   }
 #ifdef FGS_WITH_CUDA
   grid_update_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid,
-                   current_stream());
+                   current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -174,7 +175,7 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
   }
 #ifdef FGS_WITH_CUDA
   boundaries_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid,
-                  current_stream());
+                  current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -198,14 +199,14 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
   }
 #ifdef FGS_WITH_CUDA
   collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
-                 (float)friction, (float)mass_eps, (float)min_volume, grid, current_stream());
+                 (float)friction, (float)mass_eps, (float)min_volume, grid, current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
 }
 
-// Returns the number of clamped particles. Outputs are written into the given tensors.
-int64_t g2p(const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
+// Writes the outputs into the given tensors; returns (clamped, first_nonfinite or -1, max |v|).
+std::tuple<int64_t, int64_t, double> g2p(const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
             const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
             const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids,
             double dt, const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out,
@@ -248,15 +249,24 @@ int64_t g2p(const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tenso
   G2POutputs out{x_out.data_ptr<float>(), v_out.data_ptr<float>(), C_out.data_ptr<float>(), F_out.data_ptr<float>(),
                  alpha_out.data_ptr<float>(), stress_out.data_ptr<float>(),
                  reinterpret_cast<uint8_t*>(fractured_out.data_ptr<bool>())};
-  if (x.device().is_cpu()) return g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out);
+  if (x.device().is_cpu()) {
+    const G2PStats s = g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out);
+    return {s.clamped, s.first_nonfinite, (double)s.max_speed};
+  }
 #ifdef FGS_WITH_CUDA
-  Tensor counter = torch::zeros({1}, x.options().dtype(torch::kInt64));
+  Tensor stats = torch::tensor({(int64_t)0, std::numeric_limits<int64_t>::max(), (int64_t)0},
+                               torch::kInt64).to(x.device());
   g2p_cuda(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out,
-           reinterpret_cast<long long*>(counter.data_ptr<int64_t>()), current_stream());
-  return counter.item<int64_t>();
+           reinterpret_cast<long long*>(stats.data_ptr<int64_t>()), current_cuda_stream());
+  Tensor host = stats.cpu();
+  const int64_t* h = host.data_ptr<int64_t>();
+  const int32_t speed_bits = (int32_t)h[2];
+  float speed_sq;
+  std::memcpy(&speed_sq, &speed_bits, sizeof(float));
+  return {h[0], h[1] == std::numeric_limits<int64_t>::max() ? -1 : h[1], std::sqrt((double)speed_sq)};
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
-  return 0;
+  return {0, -1, 0.0};
 #endif
 }
 

@@ -214,12 +214,22 @@ void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeomet
   }
 }
 
-long long g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                  const float* grid_velocity, G2POutputs out) {
-  long long clamped = 0;
-#pragma omp parallel for schedule(static) reduction(+ : clamped)
-  for (long long q = 0; q < n; ++q) clamped += g2p_particle(q, in, geo, dt, grid_velocity, out) ? 1 : 0;
-  return clamped;
+G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                 const float* grid_velocity, G2POutputs out) {
+  long long clamped = 0, first_bad = n;
+  float max_speed_sq = 0.f;
+#pragma omp parallel for schedule(static) reduction(+ : clamped) reduction(min : first_bad) \
+    reduction(max : max_speed_sq)
+  for (long long q = 0; q < n; ++q) {
+    clamped += g2p_particle(q, in, geo, dt, grid_velocity, out) ? 1 : 0;
+    if (!particle_is_finite(q, out)) {
+      first_bad = q < first_bad ? q : first_bad;
+      continue;
+    }
+    const float speed_sq = particle_speed_sq(q, out);
+    max_speed_sq = speed_sq > max_speed_sq ? speed_sq : max_speed_sq;
+  }
+  return G2PStats{clamped, first_bad < n ? first_bad : -1, sqrtf(max_speed_sq)};
 }
 
 }  // namespace fgs

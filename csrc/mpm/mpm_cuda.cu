@@ -143,11 +143,19 @@ __global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, M
                strength, friction, mass_eps, min_volume);
 }
 
+// Integer atomics only: a count, a minimum index, and the maximum of a non-negative float through
+// its bit pattern (which orders like the value).
 __global__ void g2p_kernel(long long n, G2PInputs in, MPMGeometry geo, float dt, const float* grid_velocity,
-                           G2POutputs out, unsigned long long* clamped_count) {
+                           G2POutputs out, long long* stats) {
   long long q = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (q >= n) return;
-  if (g2p_particle(q, in, geo, dt, grid_velocity, out)) atomicAdd(clamped_count, 1ull);
+  if (g2p_particle(q, in, geo, dt, grid_velocity, out))
+    atomicAdd(reinterpret_cast<unsigned long long*>(stats), 1ull);
+  if (!particle_is_finite(q, out)) {
+    atomicMin(stats + 1, q);
+    return;
+  }
+  atomicMax(stats + 2, (long long)__float_as_int(particle_speed_sq(q, out)));
 }
 
 }  // namespace
@@ -187,10 +195,9 @@ void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeome
 }
 
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* grid_velocity,
-              G2POutputs out, long long* clamped_count, void* stream) {
+              G2POutputs out, long long* stats, void* stream) {
   if (n == 0) return;
-  g2p_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(
-      n, in, geo, dt, grid_velocity, out, reinterpret_cast<unsigned long long*>(clamped_count));
+  g2p_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(n, in, geo, dt, grid_velocity, out, stats);
 }
 
 }  // namespace fgs

@@ -66,9 +66,8 @@ void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& ge
 // (Nairn's volume check; stops contact from acting across a gap, a cell before bodies touch).
 void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
                    float strength, float friction, float mass_eps, float min_volume, GridArrays grid);
-// Returns the number of particles whose position was clamped into the domain.
-long long g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                  const float* grid_velocity, G2POutputs out);
+G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                 const float* grid_velocity, G2POutputs out);
 
 #ifdef FGS_WITH_CUDA
 // CUDA launchers: device pointers, stream is a cudaStream_t.
@@ -81,9 +80,10 @@ void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& g
 void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
                     float strength, float friction, float mass_eps, float min_volume, GridArrays grid,
                     void* stream);
-// clamped_count: device int64 counter (zeroed by the caller).
+// stats: device int64[3] = {clamped, first_nonfinite, bits of max |v|^2}, initialised by the
+// caller to {0, INT64_MAX, 0}.
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-              const float* grid_velocity, G2POutputs out, long long* clamped_count, void* stream);
+              const float* grid_velocity, G2POutputs out, long long* stats, void* stream);
 #endif
 
 }  // namespace fgs

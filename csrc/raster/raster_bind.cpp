@@ -11,7 +11,7 @@
 #include "raster/raster_kernels.h"
 
 #ifdef FGS_WITH_CUDA
-#include <c10/cuda/CUDAStream.h>
+#include "bind_utils.h"
 #endif
 
 namespace fgs {
@@ -98,9 +98,6 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
   return in;
 }
 
-#ifdef FGS_WITH_CUDA
-void* current_stream() { return (void*)c10::cuda::getCurrentCUDAStream().stream(); }
-#endif
 
 // Returns (rgb, alpha, depth, radii, proj, slot_offset, tile_start, tile_slots,
 // slot_gaussian, final_T, n_contrib, exclusive_winner).
@@ -136,7 +133,7 @@ std::vector<torch::Tensor> raster_forward(
   torch::Tensor tile_slots, slot_gaussian;
   if (means.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    void* stream = current_stream();
+    void* stream = current_cuda_stream();
     raster::preprocess_cuda(cam, in, proj.data_ptr<float>(), rect.data_ptr<int32_t>(),
                             radii.data_ptr<int32_t>(), tiles_touched.data_ptr<int32_t>(), stream);
     const size_t scan_bytes = raster::slot_offsets_scratch_bytes_cuda(N);
@@ -224,7 +221,7 @@ std::vector<torch::Tensor> raster_backward(
                                  const_cast<int32_t*>(winner.data_ptr<int32_t>())};
   if (means.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    void* stream = current_stream();
+    void* stream = current_cuda_stream();
     raster::render_backward_cuda(cam, proj.data_ptr<float>(), in.exclusive, bins, bg.data_ptr<float>(),
                                  state, grad_rgb.data_ptr<float>(), grad_alpha.data_ptr<float>(),
                                  grad_depth.data_ptr<float>(), slot_grads.data_ptr<float>(), stream);

@@ -93,6 +93,15 @@ class GridFields:
 
 
 @dataclass
+class G2PStats:
+    """Health of the particles after G2P."""
+
+    clamped: int          # positions clamped into the domain
+    first_nonfinite: int  # smallest particle index with a non-finite x, v or F_E; -1 if none
+    max_speed: float      # largest |v| among the finite particles
+
+
+@dataclass
 class ParticleBins:
     """Particles sorted by (grid, block) and the blocks the kernels must visit (int32 tensors)."""
 

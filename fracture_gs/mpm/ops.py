@@ -8,7 +8,7 @@ import torch
 
 from fracture_gs._backend import compiled_module, use_compiled
 from fracture_gs.mpm import reference
-from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins
+from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
 
 WALL_CONDITIONS = reference.WALL_CONDITIONS
 
@@ -73,7 +73,7 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
         dt: float, backend: str = "auto"):
     """Grid-to-particle transfer, advection and return map.
 
-    Returns (x, v, C, F_E, alpha, stress, fractured, clamped_count) as new tensors.
+    Returns (x, v, C, F_E, alpha, stress, fractured, G2PStats) with new tensors.
     """
     clamp_lower, clamp_upper = geometry.clamp_bounds()
     if use_compiled(x.device, backend):
@@ -81,8 +81,9 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
         out = [torch.empty_like(x), torch.empty_like(x), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(F_E), torch.empty_like(alpha), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(fractured)]
-        clamped = compiled_module().mpm_g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table,
-                                            grid.velocity, *geometry.args(), dt, clamp_lower, clamp_upper, *out)
-        return (*out, int(clamped))
+        clamped, first_bad, max_speed = compiled_module().mpm_g2p(
+            x, F_E, alpha, fractured, grid_id, material_id, material_table, grid.velocity, *geometry.args(), dt,
+            clamp_lower, clamp_upper, *out)
+        return (*out, G2PStats(int(clamped), int(first_bad), float(max_speed)))
     return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, grid.velocity,
                          geometry, dt, clamp_lower, clamp_upper)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins, node_coords, node_index
+from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins, node_coords, node_index
 from fracture_gs.mpm.materials import constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
@@ -192,7 +192,7 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
         clamp_lower: list[float], clamp_upper: list[float]):
     """Gather velocity and APIC affine field, advect, update F and run the return map.
 
-    Returns (x, v, C, F_E, alpha, stress, fractured, clamped_count).
+    Returns (x, v, C, F_E, alpha, stress, fractured, G2PStats).
     """
     index, weight, _, dpos = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
@@ -209,4 +209,9 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
     F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha)
     threshold = material_table[material_id.long(), 7]
     fractured_new = fractured | (alpha_new >= threshold)
-    return x_new, v, C, F_new, alpha_new, stress, fractured_new, clamped
+    finite = (torch.isfinite(x_new).all(1) & torch.isfinite(v).all(1) & torch.isfinite(F_new).flatten(1).all(1))
+    bad = torch.nonzero(~finite).flatten()
+    speed = v[finite].norm(dim=1)
+    stats = G2PStats(clamped=clamped, first_nonfinite=int(bad[0]) if len(bad) else -1,
+                     max_speed=float(speed.max()) if len(speed) else 0.0)
+    return x_new, v, C, F_new, alpha_new, stress, fractured_new, stats

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 
 from fracture_gs.mpm import ops
-from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins
+from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.materials import MaterialTable, elastic_energy
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
@@ -67,6 +67,7 @@ class CollisionMPM:
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
         self.state = self._initial_state()
         self.last_bins: ParticleBins | None = None  # bins of the latest substep (diagnostics)
+        self.max_speed = float(self.state.v.norm(dim=1).max()) if len(self.particles) else 0.0
 
     # ------------------------------------------------------------------ set-up
     def _parse_boundaries(self, boundaries: Sequence) -> None:
@@ -97,8 +98,7 @@ class CollisionMPM:
     # ------------------------------------------------------------------ stepping
     def stable_dt(self) -> float:
         """CFL time step: cfl * dx / (c_max + |v|_max)."""
-        v_max = float(self.state.v.norm(dim=1).max()) if len(self.particles) else 0.0
-        return self.cfl * self.geometry.dx / (self.max_wave_speed + v_max)
+        return self.cfl * self.geometry.dx / (self.max_wave_speed + self.max_speed)
 
     def step(self, dt: float) -> int:
         """Advance one substep of length ``dt``; returns the number of clamped particles."""
@@ -114,36 +114,35 @@ class CollisionMPM:
                           self.min_contact_volume, g, backend)
         ops.boundaries(bins, geo, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps,
                        g, backend)
-        x, v, C, F_E, alpha, stress, fractured, clamped = ops.g2p(
+        x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
             s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend)
-        self._check(x, v, F_E, dt)
+        self._check(stats, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
         self.last_bins = bins
-        return clamped
+        self.max_speed = stats.max_speed
+        return stats.clamped
 
-    def _check(self, x: torch.Tensor, v: torch.Tensor, F_E: torch.Tensor, dt: float) -> None:
-        t = self.state.time + dt
-        for name, value in (("position", x), ("velocity", v), ("deformation gradient", F_E)):
-            if not bool(torch.isfinite(value).all()):
-                bad = int(torch.nonzero(~torch.isfinite(value.reshape(value.shape[0], -1)).all(1))[0])
-                raise SimulationBlowUp(f"t={t:.6g}s (step {self.state.step + 1}): non-finite {name} "
-                                       f"at particle {bad}; try a smaller cfl or a finer grid")
-        v_max = float(v.norm(dim=1).max()) if v.shape[0] else 0.0
-        if v_max * dt > self.domain.size:
-            raise SimulationBlowUp(f"t={t:.6g}s (step {self.state.step + 1}): speed {v_max:.3g} crosses the "
-                                   f"domain in one step; try a smaller cfl")
+    def _check(self, stats: G2PStats, dt: float) -> None:
+        """Refuse a substep whose result is non-finite or implausibly fast (state not committed)."""
+        where = f"t={self.state.time + dt:.6g}s (step {self.state.step + 1})"
+        if stats.first_nonfinite >= 0:
+            raise SimulationBlowUp(f"{where}: non-finite position, velocity or deformation gradient at particle "
+                                   f"{stats.first_nonfinite}; try a smaller cfl or a finer grid")
+        if stats.max_speed * dt > self.domain.size:
+            raise SimulationBlowUp(f"{where}: speed {stats.max_speed:.3g} crosses the domain in one step; "
+                                   f"try a smaller cfl")
 
     def advance(self, duration: float) -> StepStats:
         """Run substeps with the adaptive CFL step until ``duration`` seconds have passed."""
         end = self.state.time + duration
         steps, dt_min, clamped = 0, math.inf, 0
         while end - self.state.time > 1e-12 * max(1.0, abs(end)):
-            dt = min(self.stable_dt(), end - self.state.time)
-            clamped += self.step(dt)
+            stable = self.stable_dt()
+            clamped += self.step(min(stable, end - self.state.time))
             steps += 1
-            dt_min = min(dt_min, dt)
+            dt_min = min(dt_min, stable)  # the CFL limit, not the frame's shortened last substep
         self.state.time = end  # remove round-off so frames land on exact times
         return StepStats(steps=steps, dt_min=dt_min if steps else 0.0, clamped=clamped)
 
@@ -213,3 +212,4 @@ class CollisionMPM:
                               F_E=tensors["F_E"].float(), alpha=tensors["alpha"].float(),
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
+        self.max_speed = float(self.state.v.norm(dim=1).max()) if n else 0.0
