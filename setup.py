@@ -38,12 +38,23 @@ def _cxx_flags() -> list[str]:
     return flags
 
 
+def _check_object_names(sources: list[str]) -> None:
+    """Two sources with the same stem in one folder would compile to the same object file."""
+    seen: dict[str, str] = {}
+    for source in sources:
+        stem = os.path.splitext(source)[0]
+        if stem in seen:
+            raise SystemExit(f"setup.py: {seen[stem]} and {source} would both build {stem}.o; rename one")
+        seen[stem] = source
+
+
 def _extensions() -> list:
     cpp_sources = sorted(glob.glob(os.path.join("csrc", "**", "*.cpp"), recursive=True))
     include_dirs = [os.path.join(ROOT, "csrc")]
     cxx = _cxx_flags()
     if _want_cuda():
         cu_sources = sorted(glob.glob(os.path.join("csrc", "**", "*.cu"), recursive=True))
+        _check_object_names(cpp_sources + cu_sources)
         nvcc = ["-O3", "-std=c++20", "--expt-relaxed-constexpr", "-lineinfo",
                 "-gencode=arch=compute_80,code=sm_80", "-gencode=arch=compute_90,code=sm_90"]
         return [cpp_extension.CUDAExtension(

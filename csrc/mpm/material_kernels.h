@@ -1,5 +1,5 @@
 // Per-particle material kernels (raw pointers, no torch): the OpenMP versions are in
-// material_kernels.cpp, the CUDA launchers (one thread per particle) in material_kernels.cu.
+// material_kernels.cpp, the CUDA launchers (one thread per particle) in material_kernels_cuda.cu.
 // Layouts: F, U, V, tau (n, 3, 3) row-major float32; alpha, psi (n,); sigma (n, 3);
 // material_table (n_materials, kMatFields) float32; material_id (n,) int32.
 // A particle whose material_id is outside [0, n_materials) gets NaN outputs.
