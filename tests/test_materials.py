@@ -463,3 +463,23 @@ def test_invalid_parameters_name_the_field(field: str, kwargs: dict) -> None:
         elastic = {k: params[k] for k in ("E", "nu", "density")}
         with pytest.raises(ValueError, match=rf"ElasticMaterial\.{field}:"):
             ElasticMaterial(**elastic)
+
+
+@pytest.mark.parametrize("backend", ["cpp", "reference"])
+def test_non_finite_input_gives_nan_output(backend):
+    """A NaN or Inf F_trial (or alpha) must come out as NaN, never as a finite projection."""
+    if backend == "cpp" and compiled is None:
+        pytest.skip("fracture_gs._C is not built")
+    materials = [ElasticMaterial(E=1e4, nu=0.3, density=1.0),
+                 NACCMaterial(E=2e5, nu=0.4, density=2.0, alpha0=-0.02, beta=0.5, xi=1.0, M=2.36)]
+    table = MaterialTable(materials).table(torch.device("cpu"))
+    F = torch.eye(3).repeat(6, 1, 1)
+    F[0, 0, 0] = F[3, 1, 2] = float("nan")
+    F[1, 2, 2] = F[4, 0, 1] = float("inf")
+    alpha = torch.full((6,), -0.02)
+    alpha[2] = alpha[5] = float("nan")
+    material_id = torch.tensor([0, 0, 0, 1, 1, 1], dtype=torch.int32)
+    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, table, material_id, backend=backend)
+    assert bool(torch.isnan(F_E).flatten(1).all(1).all())
+    assert bool(torch.isnan(tau).flatten(1).all(1).all())
+    assert bool(torch.isnan(alpha_new).all())

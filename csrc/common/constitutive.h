@@ -192,6 +192,14 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
 // Dispatch on the model column. F: F_trial in, F_E out; alpha: in/out; tau: Kirchhoff stress.
 // An unknown model code gives NaN outputs (the solver's blow-up check reports it).
 HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
+  // A non-finite input must stay visible: the return map's branches would otherwise turn a NaN
+  // F into a finite tip projection and hide a blow-up.
+  float probe = *alpha * 0.f;
+  for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
+  if (!(probe == 0.f)) {
+    constitutive_detail::fill_nan(F, alpha, tau);
+    return;
+  }
   const int model = static_cast<int>(mat_row[kMatModel]);
   if (model == kModelElastic) {
     elastic_update(mat_row, F, alpha, tau);

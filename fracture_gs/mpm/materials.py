@@ -70,9 +70,16 @@ def _validate_elasticity(owner: str, E: float, nu: float, density: float) -> Non
 def proper_svd(F: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Batched F = U diag(σ) Vᵀ with det U = det V = +1 (σ₃ < 0 iff det F < 0).
 
-    Returns U (...,3,3), σ (...,3) in decreasing order of magnitude, V (...,3,3).
+    Returns U (...,3,3), σ (...,3) in decreasing order of magnitude, V (...,3,3). Like the
+    compiled kernels, a matrix with a NaN or Inf entry gives NaN factors (LAPACK would refuse).
     """
-    U, sigma, Vh = torch.linalg.svd(F)
+    finite = torch.isfinite(F).flatten(-2).all(-1)
+    eye = torch.eye(3, dtype=F.dtype, device=F.device)
+    U, sigma, Vh = torch.linalg.svd(torch.where(finite[..., None, None], F, eye))
+    nan = torch.tensor(float("nan"), dtype=F.dtype, device=F.device)
+    U = torch.where(finite[..., None, None], U, nan)
+    sigma = torch.where(finite[..., None], sigma, nan)
+    Vh = torch.where(finite[..., None, None], Vh, nan)
     V = Vh.mT
     flip_u = torch.linalg.det(U) < 0
     flip_v = torch.linalg.det(V) < 0
@@ -390,7 +397,9 @@ def constitutive_update_reference(material_table_or_materials: TableLike,
         F_E[is_nacc] = F_nacc
         alpha_new[is_nacc] = alpha_nacc
         tau[is_nacc] = tau_nacc
-    unknown = ~(is_elastic | is_nacc)
+    # Like the kernels: unknown models and non-finite inputs give NaN, never a finite projection.
+    unknown = ~(is_elastic | is_nacc) | ~torch.isfinite(F_trial).flatten(1).all(1) | ~torch.isfinite(alpha)
+    tau[unknown] = math.nan
     F_E[unknown] = math.nan
     alpha_new[unknown] = math.nan
     return F_E, alpha_new, tau
