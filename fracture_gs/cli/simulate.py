@@ -34,7 +34,7 @@ class RunSummary:
     first_frame: int             # first frame computed by this call
     last_frame: int              # last complete frame in the folder
     steps: int                   # substeps of all frames 0..last_frame
-    dt_min: float                # smallest substep (the last one of a frame can be short)
+    dt_min: float                # smallest CFL substep (frame-end remainders excluded)
     mean_dt: float               # simulated time / substeps
     wall_time: float             # seconds spent in this call's frames
     momentum_drift: float        # |p(last) - p(0)|
@@ -157,7 +157,7 @@ def _print_summary(summary: RunSummary, stream: TextIO) -> None:
     lines = [
         f"done: frames {summary.first_frame}..{summary.last_frame} in {summary.out_dir}",
         f"  steps          {summary.steps} (mean dt {summary.mean_dt:.3g} s, smallest "
-        f"{summary.dt_min:.3g} s incl. frame-end remainders)",
+        f"CFL step {summary.dt_min:.3g} s)",
         f"  wall time      {summary.wall_time:.2f} s ({rate:.2f} frames/s)",
         f"  momentum drift |p_end - p_0| = {summary.momentum_drift:.4g} "
         f"({rel:.3g} of sum m|v| at frame 0; gravity and boundaries change it legitimately)",
