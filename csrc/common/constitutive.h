@@ -16,6 +16,7 @@
 // unchanged, inverted or not.
 #pragma once
 #include <cmath>
+#include <cstdint>
 
 #include "common/hd.h"
 #include "common/svd3.h"
@@ -219,6 +220,30 @@ HOST_DEVICE inline float elastic_energy_density(const float* mat_row, const floa
   const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda];
   return static_cast<float>(mu * (eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]) +
                             0.5 * lambda * tr * tr);
+}
+
+// Particle i of a batch: copy in, update, copy out (outputs may alias inputs). An out-of-range
+// material id gives NaN outputs; returns whether the id was valid. Used by the CPU and CUDA ops.
+HOST_DEVICE inline bool constitutive_update_particle(int64_t i, const float* F_trial, const float* alpha_in,
+                                                     const float* material_table, int64_t n_materials,
+                                                     const int32_t* material_id, float* F_out, float* alpha_out,
+                                                     float* tau_out) {
+  float F[9], tau[9];
+  for (int k = 0; k < 9; ++k) F[k] = F_trial[9 * i + k];
+  float alpha = alpha_in[i];
+  const int32_t id = material_id[i];
+  const bool valid = id >= 0 && id < n_materials;
+  if (valid) {
+    constitutive_update(material_table + kMatFields * static_cast<int64_t>(id), F, &alpha, tau);
+  } else {
+    constitutive_detail::fill_nan(F, &alpha, tau);
+  }
+  for (int k = 0; k < 9; ++k) {
+    F_out[9 * i + k] = F[k];
+    tau_out[9 * i + k] = tau[k];
+  }
+  alpha_out[i] = alpha;
+  return valid;
 }
 
 }  // namespace fgs

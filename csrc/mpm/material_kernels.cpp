@@ -6,32 +6,6 @@
 
 namespace fgs {
 
-namespace {
-
-// One particle: copy in, update in place, copy out (the outputs may alias the inputs).
-inline bool update_particle(int64_t i, const float* F_trial, const float* alpha_in,
-                            const float* material_table, int64_t n_materials,
-                            const int32_t* material_id, float* F_out, float* alpha_out,
-                            float* tau_out) {
-  float F[9], tau[9];
-  for (int k = 0; k < 9; ++k) F[k] = F_trial[9 * i + k];
-  float alpha = alpha_in[i];
-  const int32_t id = material_id[i];
-  const bool valid = id >= 0 && id < n_materials;
-  if (valid) {
-    constitutive_update(material_table + kMatFields * static_cast<int64_t>(id), F, &alpha, tau);
-  } else {
-    constitutive_detail::fill_nan(F, &alpha, tau);
-  }
-  for (int k = 0; k < 9; ++k) {
-    F_out[9 * i + k] = F[k];
-    tau_out[9 * i + k] = tau[k];
-  }
-  alpha_out[i] = alpha;
-  return valid;
-}
-
-}  // namespace
 
 int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* alpha_in,
                                 const float* material_table, int64_t n_materials,
@@ -40,8 +14,8 @@ int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* al
   int64_t invalid = 0;
 #pragma omp parallel for schedule(static) reduction(+ : invalid)
   for (int64_t i = 0; i < n; ++i) {
-    if (!update_particle(i, F_trial, alpha_in, material_table, n_materials, material_id, F_out,
-                         alpha_out, tau_out))
+    if (!constitutive_update_particle(i, F_trial, alpha_in, material_table, n_materials, material_id, F_out,
+                                      alpha_out, tau_out))
       ++invalid;
   }
   return invalid;

@@ -24,20 +24,8 @@ __global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ 
                                            float* __restrict__ tau_out) {
   const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  float F[9], tau[9];
-  for (int k = 0; k < 9; ++k) F[k] = F_trial[9 * i + k];
-  float alpha = alpha_in[i];
-  const int32_t id = material_id[i];
-  if (id >= 0 && id < n_materials) {
-    constitutive_update(material_table + kMatFields * static_cast<int64_t>(id), F, &alpha, tau);
-  } else {
-    constitutive_detail::fill_nan(F, &alpha, tau);
-  }
-  for (int k = 0; k < 9; ++k) {
-    F_out[9 * i + k] = F[k];
-    tau_out[9 * i + k] = tau[k];
-  }
-  alpha_out[i] = alpha;
+  constitutive_update_particle(i, F_trial, alpha_in, material_table, n_materials, material_id, F_out, alpha_out,
+                               tau_out);
 }
 
 __global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F,

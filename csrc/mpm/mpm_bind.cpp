@@ -206,11 +206,12 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
 }
 
 // Writes the outputs into the given tensors; returns (clamped, first_nonfinite or -1, max |v|).
-std::tuple<int64_t, int64_t, double> g2p(const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
-            const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
-            const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids,
-            double dt, const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out,
-            Tensor v_out, Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out) {
+std::tuple<int64_t, int64_t, double> g2p(
+    const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
+    const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
+    const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt,
+    const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out, Tensor v_out,
+    Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
   check_tensor(x, "x", torch::kFloat32, x);
