@@ -19,6 +19,9 @@
 #include <cmath>
 #include <cstring>
 #include <new>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 #include <vector>
 
 #include "common/blend.h"
@@ -213,6 +216,19 @@ typedef int32_t LaneI __attribute__((vector_size(4 * kLanes)));
 
 inline LaneF lanes_of(float value) { return LaneF{} + value; }
 
+// Whether any lane of a mask (0 / -1 per lane) is set.
+inline bool any_lane(LaneI mask) {
+#if defined(__AVX__)
+  static_assert(sizeof(LaneI) == sizeof(__m256i));
+  const __m256i bits = (__m256i)mask;
+  return !_mm256_testz_si256(bits, bits);
+#else
+  int32_t any = 0;
+  for (int l = 0; l < kLanes; ++l) any |= mask[l];
+  return any != 0;
+#endif
+}
+
 // exp_nonpositive (common/blend.h) on every lane: the same steps, floor through integer
 // truncation (exact here: |x·log2 e| < 2^31).
 inline LaneF exp_nonpositive_lanes(LaneF x) {
@@ -270,6 +286,8 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
             done[l] = l < cols ? 0 : -1;  // lanes past the image edge never blend
           }
           for (int32_t e = 0; e < list.size; ++e) {
+            // every few entries: stop once every lane has saturated
+            if ((e & 3) == 0 && !any_lane(~done)) break;
             if (misses_row(list, e, py)) continue;
             LaneF G;
             const LaneF a = splat_alpha_lanes(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
@@ -278,6 +296,7 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
             const LaneI excl = LaneI{} - list.exclusive[e];
             const LaneI candidate = ~done & (a >= kAlphaMin) & ~(excl & taken);
             const LaneI stop = candidate & (test_T < kTransmittanceMin);
+            if (!any_lane(candidate)) continue;
             const LaneI blend = candidate & ~stop;
             done |= stop;
             const LaneF w = blend ? a * T : LaneF{};
@@ -287,11 +306,6 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
             n_contrib = blend ? LaneI{} + (list.pos[e] + 1) : n_contrib;
             winner = (blend & excl) ? LaneI{} + list.pos[e] : winner;
             taken |= blend & excl;
-            if ((e & 3) == 3) {  // every few entries: stop once every lane has saturated
-              int running = 0;
-              for (int l = 0; l < kLanes; ++l) running |= ~done[l];
-              if (!running) break;
-            }
           }
           for (int l = 0; l < cols; ++l) {
             const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col0 + l;
@@ -362,12 +376,13 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
             const LaneF a = splat_alpha_lanes(u, v, A, B, C, o, px, py, G);
             const LaneI taken = (pos < n_contrib) & (a >= kAlphaMin) &
                                 ((list.exclusive[e] == 0 ? LaneI{} - 1 : LaneI{}) | (winner == pos));
-            const LaneF one_minus = 1.f - a;
-            const LaneF T_before = T / one_minus;
+            if (!any_lane(taken)) continue;  // e.g. outside the ellipse on this whole row
+            const LaneF inv_one_minus = 1.f / (1.f - a);
+            const LaneF T_before = T * inv_one_minus;
             const LaneF w = taken ? a * T_before : LaneF{};
             const LaneF shade = list.red[e] * g_r + list.green[e] * g_g + list.blue[e] * g_b +
                                 list.depth[e] * g_d;
-            const LaneF g_alpha = taken ? T_before * shade - (later + tail) / one_minus : LaneF{};
+            const LaneF g_alpha = taken ? T_before * shade - (later + tail) * inv_one_minus : LaneF{};
             // splat_alpha_backward (common/blend.h) on every lane
             const LaneF dx = u - px;
             const float dy = v - py;
