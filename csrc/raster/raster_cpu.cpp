@@ -2,15 +2,15 @@
 // Gaussians; binning sorts the visible Gaussians once by (depth, index) and fills the tile
 // lists in that order, so every tile list is sorted front to back. Blending runs one tile per
 // task (dynamic schedule): the tile's Gaussians are gathered into a structure-of-arrays list,
-// each 8x8 quarter of the tile keeps the entries whose support box reaches it, and every
-// pixel walks that list front to back, computing alphas 8 entries at a time (SIMD) and
-// blending sequentially until it saturates (like one CUDA thread). The backward walks each
-// pixel's list in reverse and sums the pixel gradients of each list entry in a tile-local
-// buffer, written to that entry's (Gaussian, tile) slot: no atomics, and the same bits for
-// any thread count.
+// each 8x8 quarter of the tile keeps the entries whose support box reaches it, and each row of
+// 8 pixels of a quarter walks that list front to back with one SIMD lane per pixel (GCC vector
+// extensions); a lane stops when its pixel saturates (like one CUDA thread), the row when all
+// lanes have. The backward walks each row's list in reverse, one lane per pixel, and sums the
+// gradients of each list entry per lane in a tile-local buffer, then over the lanes, into that
+// entry's (Gaussian, tile) slot: no atomics, and the same bits for any thread count.
 
-// The blending loops compute alphas for several Gaussians at once; GCC only vectorises
-// their selects (min, comparisons) when it may assume FP operations do not trap. No code
+// GCC only vectorises selects (min, comparisons) of auto-vectorised loops when it may assume
+// FP operations do not trap (the blending loops themselves use explicit vector types). No code
 // here relies on floating-point exception flags.
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC optimize("no-trapping-math")
@@ -85,7 +85,21 @@ void bin_cpu(const CameraParams& cam, int64_t num, const float* proj, const int3
   for (int64_t i = 0; i < num; ++i)
     if (slot_offset[i + 1] > slot_offset[i])
       order.push_back(((uint64_t)orderable_bits(proj[kProjStride * i + kDepth]) << 32) | (uint64_t)i);
-  std::sort(order.begin(), order.end());  // by depth, ties by index
+  // By depth, ties by index (keys are unique: the same order for any thread count). Large
+  // lists are sorted as two halves in parallel, then merged.
+  const size_t half = order.size() / 2;
+  if (half >= (size_t)kParallelGaussians) {
+#pragma omp parallel sections
+    {
+#pragma omp section
+      std::sort(order.begin(), order.begin() + half);
+#pragma omp section
+      std::sort(order.begin() + half, order.end());
+    }
+    std::inplace_merge(order.begin(), order.begin() + half, order.end());
+  } else {
+    std::sort(order.begin(), order.end());
+  }
   std::vector<int64_t> cursor(num_tiles + 1, 0);
   for (uint64_t key : order) {
     const int32_t* r = rect + 4 * (key & 0xffffffffu);
