@@ -2,15 +2,15 @@
 // Gaussians; binning sorts the visible Gaussians once by (depth, index) and fills the tile
 // lists in that order, so every tile list is sorted front to back. Blending runs one tile per
 // task (dynamic schedule): the tile's Gaussians are gathered into a structure-of-arrays list,
-// each 8x8 quarter of the tile keeps the entries whose support box reaches it, and every
-// pixel walks that list front to back, computing alphas 8 entries at a time (SIMD) and
-// blending sequentially until it saturates (like one CUDA thread). The backward walks each
-// pixel's list in reverse and sums the pixel gradients of each list entry in a tile-local
-// buffer, written to that entry's (Gaussian, tile) slot: no atomics, and the same bits for
-// any thread count.
+// each 8x8 quarter of the tile keeps the entries whose support box reaches it, and each row of
+// 8 pixels of a quarter walks that list front to back with one SIMD lane per pixel (GCC vector
+// extensions); a lane stops when its pixel saturates (like one CUDA thread), the row when all
+// lanes have. The backward walks each row's list in reverse, one lane per pixel, and sums the
+// gradients of each list entry per lane in a tile-local buffer, then over the lanes, into that
+// entry's (Gaussian, tile) slot: no atomics, and the same bits for any thread count.
 
-// The blending loops compute alphas for several Gaussians at once; GCC only vectorises
-// their selects (min, comparisons) when it may assume FP operations do not trap. No code
+// GCC only vectorises selects (min, comparisons) of auto-vectorised loops when it may assume
+// FP operations do not trap (the blending loops themselves use explicit vector types). No code
 // here relies on floating-point exception flags.
 #if defined(__GNUC__) && !defined(__clang__)
 #pragma GCC optimize("no-trapping-math")
@@ -18,6 +18,10 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <new>
+#if defined(__AVX__)
+#include <immintrin.h>
+#endif
 #include <vector>
 
 #include "common/blend.h"
@@ -81,7 +85,21 @@ void bin_cpu(const CameraParams& cam, int64_t num, const float* proj, const int3
   for (int64_t i = 0; i < num; ++i)
     if (slot_offset[i + 1] > slot_offset[i])
       order.push_back(((uint64_t)orderable_bits(proj[kProjStride * i + kDepth]) << 32) | (uint64_t)i);
-  std::sort(order.begin(), order.end());  // by depth, ties by index
+  // By depth, ties by index (keys are unique: the same order for any thread count). Large
+  // lists are sorted as two halves in parallel, then merged.
+  const size_t half = order.size() / 2;
+  if (half >= (size_t)kParallelGaussians) {
+#pragma omp parallel sections
+    {
+#pragma omp section
+      std::sort(order.begin(), order.begin() + half);
+#pragma omp section
+      std::sort(order.begin() + half, order.end());
+    }
+    std::inplace_merge(order.begin(), order.begin() + half, order.end());
+  } else {
+    std::sort(order.begin(), order.end());
+  }
   std::vector<int64_t> cursor(num_tiles + 1, 0);
   for (uint64_t key : order) {
     const int32_t* r = rect + 4 * (key & 0xffffffffu);
@@ -104,7 +122,7 @@ void bin_cpu(const CameraParams& cam, int64_t num, const float* proj, const int3
 
 namespace {
 
-constexpr int kBatch = 8;  // alphas are computed for this many list entries at once (SIMD)
+constexpr int kBatch = 8;  // lists are padded to a multiple of this many entries
 
 constexpr int kQuad = kTileSize / 2;  // pixels are processed in 8x8 quarters of a tile
 
@@ -173,41 +191,95 @@ struct TileList {
   }
 };
 
-// Calls fn(quarter_list, row, col) for every pixel of a tile, quarter by quarter.
-template <typename PixelFn>
-inline void for_each_pixel(const TileGeometry& geo, const TileList& tile, TileList& quarter,
-                           PixelFn&& fn) {
+// Calls fn(quarter_list, row, col0, cols) for every row of every 8x8 quarter of a tile: the
+// pixels (row, col0 .. col0 + cols - 1) are processed together, one SIMD lane each.
+template <typename RowFn>
+inline void for_each_row(const TileGeometry& geo, const TileList& tile, TileList& quarter,
+                         RowFn&& fn) {
   for (int qy = 0; qy < geo.height; qy += kQuad)
     for (int qx = 0; qx < geo.width; qx += kQuad) {
       const int rows = std::min(kQuad, geo.height - qy), cols = std::min(kQuad, geo.width - qx);
       quarter.select(tile, (float)(geo.x0 + qx) + 0.5f, (float)(geo.x0 + qx + cols) - 0.5f,
                      (float)(geo.y0 + qy) + 0.5f, (float)(geo.y0 + qy + rows) - 0.5f);
-      for (int row = qy; row < qy + rows; ++row)
-        for (int col = qx; col < qx + cols; ++col) fn(quarter, row, col);
+      for (int row = qy; row < qy + rows; ++row) fn(quarter, row, qx, cols);
     }
 }
 
-// Alphas (and Gaussian values) of kBatch consecutive list entries at one pixel centre;
-// returns how many of them reach 1/255 (0 lets the caller skip the batch without branches
-// per entry).
-inline int batch_alpha(const TileList& row, int32_t first, float px, float py, float* alpha,
-                       float* gauss) {
-  const float* u = row.u.data() + first; const float* v = row.v.data() + first;
-  const float* A = row.A.data() + first; const float* B = row.B.data() + first;
-  const float* C = row.C.data() + first; const float* o = row.opacity.data() + first;
-  int reaching = 0;
-#pragma omp simd reduction(+ : reaching)
-  for (int k = 0; k < kBatch; ++k) {
-    float G;
-    alpha[k] = splat_alpha(u[k], v[k], A[k], B[k], C[k], o[k], px, py, G);
-    gauss[k] = G;
-    reaching += alpha[k] >= kAlphaMin ? 1 : 0;
-  }
-  return reaching;
+constexpr int kLanes = kQuad;
+
+// 32-byte aligned storage for per-lane accumulators.
+template <typename T>
+struct AlignedAllocator {
+  using value_type = T;
+  AlignedAllocator() = default;
+  template <typename U> AlignedAllocator(const AlignedAllocator<U>&) {}
+  T* allocate(size_t n) { return static_cast<T*>(::operator new(n * sizeof(T), std::align_val_t(32))); }
+  void deallocate(T* p, size_t) { ::operator delete(p, std::align_val_t(32)); }
+  bool operator==(const AlignedAllocator&) const { return true; }
+};  // pixels of a quarter row, blended together (one per lane)
+
+// True when entry e's support box misses the pixel-centre row y = py.
+inline bool misses_row(const TileList& list, int32_t e, float py) {
+  return !(list.v[e] + list.ey[e] >= py && list.v[e] - list.ey[e] <= py);
+}
+
+// One float / int32 per lane (GCC vector extensions: AVX with -march=native, otherwise split
+// by the compiler into narrower vectors).
+typedef float LaneF __attribute__((vector_size(4 * kLanes)));
+typedef int32_t LaneI __attribute__((vector_size(4 * kLanes)));
+
+inline LaneF lanes_of(float value) { return LaneF{} + value; }
+
+// Whether any lane of a mask (0 / -1 per lane) is set.
+inline bool any_lane(LaneI mask) {
+#if defined(__AVX__)
+  static_assert(sizeof(LaneI) == sizeof(__m256i));
+  const __m256i bits = (__m256i)mask;
+  return !_mm256_testz_si256(bits, bits);
+#else
+  int32_t any = 0;
+  for (int l = 0; l < kLanes; ++l) any |= mask[l];
+  return any != 0;
+#endif
+}
+
+// exp_nonpositive (common/blend.h) on every lane: the same steps, floor through integer
+// truncation (exact here: |x·log2 e| < 2^31).
+inline LaneF exp_nonpositive_lanes(LaneF x) {
+  x = x > -80.f ? x : lanes_of(-80.f);
+  const LaneF t = x * 1.4426950408889634f + 0.5f;
+  const LaneI truncated = __builtin_convertvector(t, LaneI);
+  const LaneF truncated_f = __builtin_convertvector(truncated, LaneF);
+  const LaneI above = truncated_f > t;  // -1 where truncation rounded up (negative t)
+  const LaneF n = truncated_f + __builtin_convertvector(above, LaneF);
+  const LaneF r = (x - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
+  LaneF p = lanes_of(1.f / 720.f);
+  p = p * r + 1.f / 120.f;
+  p = p * r + 1.f / 24.f;
+  p = p * r + 1.f / 6.f;
+  p = p * r + 0.5f;
+  p = p * r + 1.f;
+  p = p * r + 1.f;
+  return p * (LaneF)((truncated + above + 127) << 23);
+}
+
+// splat_alpha (common/blend.h) of one Gaussian at the pixel centres (px[lane], py).
+inline LaneF splat_alpha_lanes(float u, float v, float A, float B, float C, float opacity,
+                               LaneF px, float py, LaneF& G) {
+  const LaneF dx = u - px;
+  const float dy = v - py;
+  const LaneF power = -0.5f * (A * dx * dx + C * dy * dy) - B * dx * dy;
+  G = power <= 0.f ? exp_nonpositive_lanes(power) : LaneF{};
+  const LaneF a = opacity * G;
+  return a < kAlphaMax ? a : lanes_of(kAlphaMax);
 }
 
 }  // namespace
 
+// Each quarter row of 8 pixels walks its quarter's list front to back with one SIMD lane per
+// pixel; a lane stops (like one CUDA thread) once its transmittance would fall below the
+// threshold, and the row stops once all its lanes have. Per pixel, the operations and their
+// order are exactly those of the one-pixel-at-a-time loop (inactive lanes add zeros).
 void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
                         const TileBins& bins, const float* background, float* rgb, float* alpha,
                         float* depth, const PixelState& state) {
@@ -219,43 +291,57 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
       tile_list.gather(bins, tile, proj, exclusive);
-      for_each_pixel(geo, tile_list, quarter, [&](const TileList& list, int row, int col) {
-          const float px = (float)(geo.x0 + col) + 0.5f, py = (float)(geo.y0 + row) + 0.5f;
-          float T = 1.f, acc_r = 0.f, acc_g = 0.f, acc_b = 0.f, acc_d = 0.f;
-          int32_t n_contrib = 0, winner = -1;
-          bool taken = false, done = false;
-          for (int32_t first = 0; first < list.size && !done; first += kBatch) {
-            alignas(32) float a[kBatch], G[kBatch];
-            if (batch_alpha(list, first, px, py, a, G) == 0) continue;
-            for (int k = 0; k < kBatch; ++k) {
-              if (a[k] < kAlphaMin) continue;
-              const int32_t e = first + k;
-              const bool excl = list.exclusive[e] != 0;
-              if (excl && taken) continue;
-              const float test_T = T * (1.f - a[k]);
-              if (test_T < kTransmittanceMin) { done = true; break; }
-              const float w = a[k] * T;
-              acc_r += w * list.red[e]; acc_g += w * list.green[e]; acc_b += w * list.blue[e];
-              acc_d += w * list.depth[e];
-              T = test_T;
-              n_contrib = list.pos[e] + 1;
-              if (excl) { taken = true; winner = list.pos[e]; }
-            }
+      for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
+          const float py = (float)(geo.y0 + row) + 0.5f;
+          LaneF px, T = lanes_of(1.f), acc_r{}, acc_g{}, acc_b{}, acc_d{};
+          LaneI n_contrib{}, winner = LaneI{} - 1, taken{}, done{};  // masks are 0 / -1
+          for (int l = 0; l < kLanes; ++l) {
+            px[l] = (float)(geo.x0 + col0 + l) + 0.5f;
+            done[l] = l < cols ? 0 : -1;  // lanes past the image edge never blend
           }
-          const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
-          rgb[3 * pix] = acc_r + T * background[0];
-          rgb[3 * pix + 1] = acc_g + T * background[1];
-          rgb[3 * pix + 2] = acc_b + T * background[2];
-          alpha[pix] = 1.f - T;
-          depth[pix] = acc_d;
-          state.final_T[pix] = T;
-          state.n_contrib[pix] = n_contrib;
-          state.exclusive_winner[pix] = winner;
+          for (int32_t e = 0; e < list.size; ++e) {
+            // every few entries: stop once every lane has saturated
+            if ((e & 3) == 0 && !any_lane(~done)) break;
+            if (misses_row(list, e, py)) continue;
+            LaneF G;
+            const LaneF a = splat_alpha_lanes(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
+                                              list.opacity[e], px, py, G);
+            const LaneF test_T = T * (1.f - a);
+            const LaneI excl = LaneI{} - list.exclusive[e];
+            const LaneI candidate = ~done & (a >= kAlphaMin) & ~(excl & taken);
+            const LaneI stop = candidate & (test_T < kTransmittanceMin);
+            if (!any_lane(candidate)) continue;
+            const LaneI blend = candidate & ~stop;
+            done |= stop;
+            const LaneF w = blend ? a * T : LaneF{};
+            acc_r += w * list.red[e]; acc_g += w * list.green[e]; acc_b += w * list.blue[e];
+            acc_d += w * list.depth[e];
+            T = blend ? test_T : T;
+            n_contrib = blend ? LaneI{} + (list.pos[e] + 1) : n_contrib;
+            winner = (blend & excl) ? LaneI{} + list.pos[e] : winner;
+            taken |= blend & excl;
+          }
+          for (int l = 0; l < cols; ++l) {
+            const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col0 + l;
+            rgb[3 * pix] = acc_r[l] + T[l] * background[0];
+            rgb[3 * pix + 1] = acc_g[l] + T[l] * background[1];
+            rgb[3 * pix + 2] = acc_b[l] + T[l] * background[2];
+            alpha[pix] = 1.f - T[l];
+            depth[pix] = acc_d[l];
+            state.final_T[pix] = T[l];
+            state.n_contrib[pix] = n_contrib[l];
+            state.exclusive_winner[pix] = winner[l];
+          }
       });
     }
   }
 }
 
+// The backward walks each quarter row's list in reverse, one lane per pixel, from the last
+// entry any lane blended; a lane only takes the entries its pixel blended (position below its
+// n_contrib, alpha >= 1/255, the winning exclusive one). Each entry's gradients are summed per
+// lane over the tile's pixels in a fixed order, then over the lanes, and written to the entry's
+// (Gaussian, tile) slot: no atomics, the same bits for any thread count.
 void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
                          const TileBins& bins, const float* background, const PixelState& state,
                          const float* grad_rgb, const float* grad_alpha, const float* grad_depth,
@@ -264,54 +350,83 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
 #pragma omp parallel if (num_tiles >= kParallelTiles)
   {
     TileList tile_list, quarter;
-    std::vector<float> tile_grads;  // kSlotStride per tile-list entry, summed over pixels
+    // per tile-list entry: kSlotStride fields x kLanes lanes, summed over the tile's rows
+    std::vector<float, AlignedAllocator<float>> lane_grads;
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
       const int32_t begin = bins.tile_start[tile], count = bins.tile_start[tile + 1] - begin;
-      tile_grads.assign((size_t)count * kSlotStride, 0.f);
+      lane_grads.assign((size_t)count * kSlotStride * kLanes, 0.f);
       tile_list.gather(bins, tile, proj, exclusive);
-      // Pixels in a fixed order, each walking its list backwards: deterministic sums.
-      for_each_pixel(geo, tile_list, quarter, [&](const TileList& list, int row, int col) {
-          const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col;
-          const float px = (float)(geo.x0 + col) + 0.5f, py = (float)(geo.y0 + row) + 0.5f;
-          const float g_r = grad_rgb[3 * pix], g_g = grad_rgb[3 * pix + 1];
-          const float g_b = grad_rgb[3 * pix + 2], g_d = grad_depth[pix];
-          float T = state.final_T[pix];
-          // T_N (bg·dL/dC - dL/dA): how the background and alpha outputs depend on T_N.
-          const float tail = T * (background[0] * g_r + background[1] * g_g +
-                                  background[2] * g_b - grad_alpha[pix]);
-          float later = 0.f;  // sum over later blended entries of w·(c·dL/dC + z·dL/dD)
-          const int32_t winner = state.exclusive_winner[pix], n_contrib = state.n_contrib[pix];
-          // entries with tile-list position < n_contrib (pos increases along the list)
+      for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
+          const float py = (float)(geo.y0 + row) + 0.5f;
+          LaneF px, T = lanes_of(1.f), tail{}, g_r{}, g_g{}, g_b{}, g_d{};
+          LaneF later{};  // sum over later blended entries of w·(c·dL/dC + z·dL/dD)
+          LaneI winner = LaneI{} - 1, n_contrib{};  // lanes past the image edge take nothing
+          int32_t max_contrib = 0;
+          for (int l = 0; l < kLanes; ++l) {
+            px[l] = (float)(geo.x0 + col0 + l) + 0.5f;
+            if (l >= cols) continue;
+            const int64_t pix = (int64_t)(geo.y0 + row) * cam.width + geo.x0 + col0 + l;
+            g_r[l] = grad_rgb[3 * pix]; g_g[l] = grad_rgb[3 * pix + 1];
+            g_b[l] = grad_rgb[3 * pix + 2]; g_d[l] = grad_depth[pix];
+            T[l] = state.final_T[pix];
+            // T_N (bg·dL/dC - dL/dA): how the background and alpha outputs depend on T_N.
+            tail[l] = T[l] * (background[0] * g_r[l] + background[1] * g_g[l] +
+                              background[2] * g_b[l] - grad_alpha[pix]);
+            winner[l] = state.exclusive_winner[pix];
+            n_contrib[l] = state.n_contrib[pix];
+            max_contrib = std::max(max_contrib, n_contrib[l]);
+          }
+          // entries with tile-list position < max n_contrib (pos increases along the list)
           const int32_t end = (int32_t)(std::lower_bound(list.pos.begin(), list.pos.begin() + list.size,
-                                                         n_contrib) - list.pos.begin());
-          for (int32_t batch_end = end; batch_end > 0; batch_end -= kBatch) {
-            const int32_t first = batch_end >= kBatch ? batch_end - kBatch : 0;
-            alignas(32) float a[kBatch], G[kBatch];
-            if (batch_alpha(list, first, px, py, a, G) == 0) continue;
-            for (int32_t e = batch_end - 1; e >= first; --e) {
-              const int k = e - first;
-              if (a[k] < kAlphaMin || (list.exclusive[e] != 0 && winner != list.pos[e])) continue;
-              const float one_minus = 1.f - a[k];
-              const float T_before = T / one_minus;
-              const float w = a[k] * T_before;
-              const float shade = list.red[e] * g_r + list.green[e] * g_g + list.blue[e] * g_b +
-                                  list.depth[e] * g_d;
-              const float g_alpha = T_before * shade - (later + tail) / one_minus;
-              float* out = &tile_grads[(size_t)list.pos[e] * kSlotStride];
-              splat_alpha_backward(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
-                                   list.opacity[e], px, py, G[k], g_alpha, out);
-              out[kGradRed] += w * g_r; out[kGradGreen] += w * g_g; out[kGradBlue] += w * g_b;
-              out[kGradDepth] += w * g_d;
-              later += w * shade;
-              T = T_before;
-            }
+                                                         max_contrib) - list.pos.begin());
+          for (int32_t e = end - 1; e >= 0; --e) {
+            if (misses_row(list, e, py)) continue;
+            const float u = list.u[e], v = list.v[e], A = list.A[e], B = list.B[e], C = list.C[e];
+            const float o = list.opacity[e];
+            const int32_t pos = list.pos[e];
+            LaneF G;
+            const LaneF a = splat_alpha_lanes(u, v, A, B, C, o, px, py, G);
+            const LaneI taken = (pos < n_contrib) & (a >= kAlphaMin) &
+                                ((list.exclusive[e] == 0 ? LaneI{} - 1 : LaneI{}) | (winner == pos));
+            if (!any_lane(taken)) continue;  // e.g. outside the ellipse on this whole row
+            const LaneF inv_one_minus = 1.f / (1.f - a);
+            const LaneF T_before = T * inv_one_minus;
+            const LaneF w = taken ? a * T_before : LaneF{};
+            const LaneF shade = list.red[e] * g_r + list.green[e] * g_g + list.blue[e] * g_b +
+                                list.depth[e] * g_d;
+            const LaneF g_alpha = taken ? T_before * shade - (later + tail) * inv_one_minus : LaneF{};
+            // splat_alpha_backward (common/blend.h) on every lane
+            const LaneF dx = u - px;
+            const float dy = v - py;
+            const LaneI unclamped = o * G <= kAlphaMax;
+            const LaneF g_opacity = unclamped ? G * g_alpha : LaneF{};
+            const LaneF g_power = unclamped ? G * o * g_alpha : LaneF{};
+            LaneF* out = reinterpret_cast<LaneF*>(&lane_grads[(size_t)pos * kSlotStride * kLanes]);
+            out[kGradU] += g_power * (-A * dx - B * dy);
+            out[kGradV] += g_power * (-C * dy - B * dx);
+            out[kGradConicA] += -0.5f * dx * dx * g_power;
+            out[kGradConicB] += -dx * dy * g_power;
+            out[kGradConicC] += -0.5f * dy * dy * g_power;
+            out[kGradOpacity] += g_opacity;
+            out[kGradRed] += w * g_r;
+            out[kGradGreen] += w * g_g;
+            out[kGradBlue] += w * g_b;
+            out[kGradDepth] += w * g_d;
+            later += w * shade;
+            T = taken ? T_before : T;
           }
       });
-      for (int32_t pos = 0; pos < count; ++pos)
-        std::memcpy(slot_grads + (int64_t)kSlotStride * bins.tile_slots[begin + pos],
-                    &tile_grads[(size_t)pos * kSlotStride], sizeof(float) * kSlotStride);
+      for (int32_t pos = 0; pos < count; ++pos) {
+        float* slot = slot_grads + (int64_t)kSlotStride * bins.tile_slots[begin + pos];
+        const float* lanes = &lane_grads[(size_t)pos * kSlotStride * kLanes];
+        for (int f = 0; f < kSlotStride; ++f) {
+          float sum = 0.f;
+          for (int l = 0; l < kLanes; ++l) sum += lanes[f * kLanes + l];
+          slot[f] = sum;
+        }
+      }
     }
   }
 }
