@@ -322,14 +322,19 @@ def _check_keys(data: Mapping[str, Any], path: str, allowed: Sequence[str],
             raise SceneError(_join(path, key), "required key is missing")
 
 
+def _default(keypath: str, default: Any) -> Any:
+    """The default of an absent key, or the error if the key is required."""
+    if default is _MISSING:
+        raise SceneError(keypath, "required key is missing")
+    return default
+
+
 def _number(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
             gt: float | None = None, ge: float | None = None,
             lt: float | None = None, le: float | None = None) -> float:
     keypath = _join(path, key)
     if key not in data:
-        if default is _MISSING:
-            raise SceneError(keypath, "required key is missing")
-        return default
+        return _default(keypath, default)
     return _check_number(data[key], keypath, gt=gt, ge=ge, lt=lt, le=le)
 
 
@@ -355,9 +360,7 @@ def _integer(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSI
              ge: int | None = None) -> int:
     keypath = _join(path, key)
     if key not in data:
-        if default is _MISSING:
-            raise SceneError(keypath, "required key is missing")
-        return default
+        return _default(keypath, default)
     value = data[key]
     if isinstance(value, float) and value.is_integer():
         value = int(value)
@@ -372,9 +375,7 @@ def _vec3(data: Mapping[str, Any], key: str, path: str,
           default: Any = _MISSING, *, gt: float | None = None) -> tuple[float, float, float]:
     keypath = _join(path, key)
     if key not in data:
-        if default is _MISSING:
-            raise SceneError(keypath, "required key is missing")
-        return default
+        return _default(keypath, default)
     value = data[key]
     if not isinstance(value, list) or len(value) != 3:
         raise SceneError(keypath, f"expected a list of 3 numbers, got {_type_name(value)}")
@@ -386,9 +387,7 @@ def _choice(data: Mapping[str, Any], key: str, path: str, choices: Sequence[str]
             default: Any = _MISSING) -> str:
     keypath = _join(path, key)
     if key not in data:
-        if default is _MISSING:
-            raise SceneError(keypath, "required key is missing")
-        return default
+        return _default(keypath, default)
     value = data[key]
     if not isinstance(value, str) or value not in choices:
         raise SceneError(keypath, f"{_fmt(value)} is not one of {', '.join(choices)}")
@@ -398,9 +397,7 @@ def _choice(data: Mapping[str, Any], key: str, path: str, choices: Sequence[str]
 def _list(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING) -> list[Any]:
     keypath = _join(path, key)
     if key not in data:
-        if default is _MISSING:
-            raise SceneError(keypath, "required key is missing")
-        return default
+        return _default(keypath, default)
     value = data[key]
     if not isinstance(value, list):
         raise SceneError(keypath, f"expected a list, got {_type_name(value)}")
