@@ -100,12 +100,11 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   check_grid(grid_momentum, "grid_momentum", 3, geo, x);
   if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
   if (grid_volume) check_grid(*grid_volume, "grid_volume", 1, geo, x);
-  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, b);
+  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>()};
   GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_volume);
   Tensor color_start = bins[4].to(torch::kCPU);
-  for (const auto& t : bins) TORCH_CHECK(t.device() == x.device(), "bins must be on the particles' device");
   BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
                 bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
                 (int)bins[5].numel()};

@@ -9,7 +9,7 @@ from __future__ import annotations
 import torch
 
 from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins, node_coords, node_index
-from fracture_gs.mpm.materials import constitutive_update_reference
+from fracture_gs.mpm.materials import COLUMN, constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
 # The 27 stencil offsets, in the order the kernels visit them (a, b, c nested).
@@ -207,7 +207,7 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
     eye = torch.eye(3, device=x.device, dtype=x.dtype)
     F_trial = (eye + dt * C) @ F_E
     F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha)
-    threshold = material_table[material_id.long(), 7]
+    threshold = material_table[material_id.long(), COLUMN["alpha_threshold"]]
     fractured_new = fractured | (alpha_new >= threshold)
     finite = (torch.isfinite(x_new).all(1) & torch.isfinite(v).all(1) & torch.isfinite(F_new).flatten(1).all(1))
     bad = torch.nonzero(~finite).flatten()

@@ -16,7 +16,7 @@ import torch
 
 from fracture_gs.mpm import ops
 from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
-from fracture_gs.mpm.materials import MaterialTable, elastic_energy
+from fracture_gs.mpm.materials import COLUMN, MaterialTable, elastic_energy
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
 
@@ -65,7 +65,7 @@ class CollisionMPM:
         self.grid = GridFields.zeros(self.geometry, self.device, with_contact=self.use_contact)
         self.min_contact_volume = CONTACT_VOLUME_FRACTION * self.geometry.dx ** 3
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
-        self.state = self._initial_state()
+        self.state = self._initial_state(table)
         self.last_bins: ParticleBins | None = None  # bins of the latest substep (diagnostics)
         self.max_speed = float(self.state.v.norm(dim=1).max()) if len(self.particles) else 0.0
 
@@ -83,12 +83,11 @@ class CollisionMPM:
             else:
                 raise TypeError(f"unknown boundary {boundary!r}")
 
-    def _initial_state(self) -> SimState:
+    def _initial_state(self, table: MaterialTable) -> SimState:
         n = len(self.particles)
         eye = torch.eye(3, device=self.device).expand(n, 3, 3).contiguous()
-        alpha0 = torch.tensor([float(getattr(m, "alpha0", 0.0)) for m in self.materials], device=self.device)
-        alpha = alpha0[self.particles.material_id.long()].contiguous()
-        threshold = self.material_table[self.particles.material_id.long(), 7]
+        alpha = table.initial_alpha(self.particles.material_id).contiguous()
+        threshold = self.material_table[self.particles.material_id.long(), COLUMN["alpha_threshold"]]
         state = SimState(x=self.particles.x.float().contiguous(), v=self.particles.v.float().contiguous(),
                          C=torch.zeros(n, 3, 3, device=self.device), F_E=eye, alpha=alpha,
                          fractured=(alpha >= threshold).contiguous())
