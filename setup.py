@@ -32,7 +32,7 @@ def _want_cuda() -> bool:
 
 
 def _cxx_flags() -> list[str]:
-    flags = ["-O3", "-fopenmp", "-std=c++20", "-fno-math-errno"]
+    flags = ["-O3", "-fopenmp", "-std=c++20", "-fno-math-errno", "-fno-trapping-math"]
     if os.environ.get("FRACTURE_GS_PORTABLE", "0") in ("", "0") and sys.platform.startswith("linux"):
         flags.append("-march=native")
     return flags

@@ -131,8 +131,11 @@ def test_collision_matches_reference_and_conserves_momentum(friction, n_grids):
     bins, compiled = contact_grids(n_grids, geometry)
     twin = double_copy(compiled)
     before = (compiled.mass.double()[..., None] * compiled.velocity.double()).sum((0, 1))
-    # Half the contact nodes pass the volume check with this threshold.
-    min_volume = float((compiled.volume[0] + compiled.volume[1])[(compiled.mass[:2] > 1e-12).all(0)].median())
+    # Half the contact nodes pass the volume check with this threshold. It lies halfway between
+    # two nodal volume sums, so float32 (kernel) and float64 (twin) sums fall on the same side.
+    sums = (compiled.volume[0].double() + compiled.volume[1].double())[(compiled.mass[:2] > 1e-12).all(0)]
+    sums = torch.unique(sums)  # sorted, distinct
+    min_volume = float(0.5 * (sums[len(sums) // 2 - 1] + sums[len(sums) // 2]))
     ops.collision(bins, geometry, 1.0, friction, 1e-12, min_volume, compiled, backend="cpp")
     reference.collision(twin, 1.0, friction, 1e-12, min_volume)
     changed = (twin.velocity != compiled.velocity.double()).any(-1)

@@ -5,7 +5,11 @@
 #if defined(__CUDACC__)
 #define HOST_DEVICE __host__ __device__
 #define FGS_RESTRICT __restrict__
+#define FGS_FORCE_INLINE __forceinline__
 #else
 #define HOST_DEVICE
 #define FGS_RESTRICT __restrict__
+#define FGS_FORCE_INLINE __attribute__((always_inline)) inline
 #endif
+// FGS_FORCE_INLINE: for functions that a `#pragma omp simd` loop calls; the vectoriser only
+// sees through calls that are inlined.

@@ -69,11 +69,31 @@ HOST_DEVICE inline void grid_node_velocity(float mass, const float* momentum, fl
   for (int d = 0; d < 3; ++d) velocity[d] = mass > mass_eps ? momentum[d] / mass + dt * gravity[d] : 0.f;
 }
 
-// G2P of particle q: gathers v and the APIC matrix C from its grid, advects and clamps the
-// position, updates F_E through the material's return map and latches the fracture flag.
-// Returns true if the position had to be clamped into the domain.
-HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                                     const float* grid_velocity, const G2POutputs& out) {
+// The end of a G2P gather, given the particle's new velocity vp and APIC matrix C: advects and
+// clamps the position, writes x, v, C of `out` and returns F_trial = (I + dt C) F_E. Returns
+// true if the position had to be clamped into the domain.
+HOST_DEVICE inline bool g2p_advect(long long q, const G2PInputs& in, float dt, const float vp[3], const float C[9],
+                                   const G2POutputs& out, float F_trial[9]) {
+  bool clamped = false;
+  for (int d = 0; d < 3; ++d) {
+    float xn = in.x[3 * q + d] + dt * vp[d];
+    if (xn < in.clamp_lower[d]) { xn = in.clamp_lower[d]; clamped = true; }
+    if (xn > in.clamp_upper[d]) { xn = in.clamp_upper[d]; clamped = true; }
+    out.x[3 * q + d] = xn;
+    out.v[3 * q + d] = vp[d];
+  }
+  for (int i = 0; i < 9; ++i) out.C[9 * q + i] = C[i];
+  float G[9];
+  for (int i = 0; i < 9; ++i) G[i] = dt * C[i] + ((i % 4 == 0) ? 1.f : 0.f);
+  mat3_mul(G, in.F_E + 9 * q, F_trial);
+  return clamped;
+}
+
+// G2P gather of particle q: v and the APIC matrix C from its grid, the advected (and clamped)
+// position, and F_trial = (I + dt C) F_E for the return map. Writes x, v, C of `out`; returns
+// true if the position had to be clamped into the domain.
+HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                   const float* grid_velocity, const G2POutputs& out, float F_trial[9]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   AxisWeights aw[3];
@@ -105,30 +125,35 @@ HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPM
   const float apic_scale = 4.f * geo.inv_dx * geo.inv_dx;
   float C[9];
   for (int i = 0; i < 9; ++i) C[i] = apic_scale * B[i];
-  bool clamped = false;
-  for (int d = 0; d < 3; ++d) {
-    float xn = in.x[3 * q + d] + dt * vp[d];
-    if (xn < in.clamp_lower[d]) { xn = in.clamp_lower[d]; clamped = true; }
-    if (xn > in.clamp_upper[d]) { xn = in.clamp_upper[d]; clamped = true; }
-    out.x[3 * q + d] = xn;
-    out.v[3 * q + d] = vp[d];
-  }
-  // F_trial = (I + dt C) F_E, then the material's return map.
-  float G[9];
-  for (int i = 0; i < 9; ++i) G[i] = dt * C[i] + ((i % 4 == 0) ? 1.f : 0.f);
-  float F[9];
-  mat3_mul(G, in.F_E + 9 * q, F);
-  const float* mat = in.material_table + (long long)in.material_id[q] * kMatFields;
-  float alpha = in.alpha[q];
-  float tau[9];
-  constitutive_update(mat, F, &alpha, tau);
+  return g2p_advect(q, in, dt, vp, C, out, F_trial);
+}
+
+// Material row of particle q.
+HOST_DEVICE inline const float* g2p_material_row(long long q, const G2PInputs& in) {
+  return in.material_table + (long long)in.material_id[q] * kMatFields;
+}
+
+// Stores the result of particle q's return map and latches its fracture flag.
+HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, const G2POutputs& out, const float F_E[9],
+                                           float alpha, const float tau[9]) {
   for (int i = 0; i < 9; ++i) {
-    out.C[9 * q + i] = C[i];
-    out.F_E[9 * q + i] = F[i];
+    out.F_E[9 * q + i] = F_E[i];
     out.stress[9 * q + i] = tau[i];
   }
   out.alpha[q] = alpha;
-  out.fractured[q] = (in.fractured[q] || alpha >= mat[kMatAlphaThreshold]) ? 1 : 0;
+  out.fractured[q] = (in.fractured[q] || alpha >= g2p_material_row(q, in)[kMatAlphaThreshold]) ? 1 : 0;
+}
+
+// G2P of particle q: gather and advection (g2p_gather), the material's return map on
+// F_trial, and the fracture flag. Returns true if the position had to be clamped.
+HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                     const float* grid_velocity, const G2POutputs& out) {
+  float F[9];
+  const bool clamped = g2p_gather(q, in, geo, dt, grid_velocity, out, F);
+  float alpha = in.alpha[q];
+  float tau[9];
+  constitutive_update(g2p_material_row(q, in), F, &alpha, tau);
+  g2p_store_material(q, in, out, F, alpha, tau);
   return clamped;
 }
 

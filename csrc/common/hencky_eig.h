@@ -1,0 +1,238 @@
+// The constitutive update of csrc/common/constitutive.h without an SVD: float32, branch-free,
+// written so that a `#pragma omp simd` loop over particles vectorises it (the CPU kernels run
+// it 8 or 16 particles per instruction; see csrc/mpm/constitutive_batch.h).
+//
+// Every model here is isotropic, so the stress and the return map only need the eigen-
+// decomposition of the left Cauchy-Green tensor b = F F^T = Q diag(s) Q^T, s_i = sigma_i^2:
+//   Hencky strain   eps_i = ln sigma_i = 1/2 log1p(|Q_i^T F|^2 - 1),  Q = eigenvectors of b - I
+//   Kirchhoff       tau = Q diag(2 mu eps + lambda_L tr eps) Q^T
+//   return map      F_E = U diag(e^eps') V^T = Q diag(e^(eps' - eps)) Q^T F
+// (V^T = diag(sigma)^-1 U^T F and U = Q up to column signs, which cancel). b - I is formed in
+// double from the float F (exact products), so its eigenvalues carry the strain to float
+// *relative* accuracy even for strains of 1e-5 and any rotation, and the stress error is a few
+// float ulp of the stress: the eigenvector error (~1e-7 |b - I| / gap) is multiplied by
+// differences of principal stresses (~mu gap).
+//
+// The eigen-decomposition is cyclic Jacobi with a fixed number of sweeps (no data-dependent
+// loop, so every SIMD lane does the same work and a particle's result does not depend on its
+// neighbours in the batch).
+//
+// Not handled here (the caller falls back to the SVD path, constitutive_update): inverted or
+// nearly singular F (det F <= 0 or sigma_min < 1e-3, where the Hencky clamp and the sign
+// convention of svd3 matter), non-finite input, unknown model codes. The function reports
+// whether its result is valid.
+#pragma once
+#include <cmath>
+
+#include "common/constitutive.h"
+#include "common/fast_math.h"
+#include "common/hd.h"
+
+namespace fgs {
+
+constexpr int kJacobiSweeps = 4;  // cyclic Jacobi sweeps of sym3_eigenvectors
+// b's smallest eigenvalue sigma_min^2 must exceed this for the eigen path (sigma_min > 1e-3).
+constexpr float kEigMinStretchSq = 1e-6f;
+
+namespace hencky_eig_detail {
+
+// One Jacobi rotation in the (p, q) plane that zeroes a_pq of a symmetric 3x3 matrix; r is the
+// third index. The columns p, q of Q (row-major, eigenvectors as columns) rotate with it.
+template <int P, int Qc, class T>
+HOST_DEVICE FGS_FORCE_INLINE void jacobi_rotation(T& app, T& aqq, T& apq, T& arp, T& arq, T Q[9]) {
+  const T d = aqq - app;
+  const T h = sqrt(d * d + T(4) * apq * apq);
+  const T den = (d < T(0) ? -d : d) + h;
+  T t = T(2) * apq / (den > T(0) ? den : T(1));  // tan of the rotation angle, |t| <= 1
+  t = d < T(0) ? -t : t;
+  const T c = T(1) / sqrt(T(1) + t * t);
+  const T s = t * c;
+  app -= t * apq;
+  aqq += t * apq;
+  apq = T(0);
+  const T rp = arp, rq = arq;
+  arp = c * rp - s * rq;
+  arq = s * rp + c * rq;
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) {
+    const T qp = Q[3 * i + P], qq = Q[3 * i + Qc];
+    Q[3 * i + P] = c * qp - s * qq;
+    Q[3 * i + Qc] = s * qp + c * qq;
+  }
+}
+
+}  // namespace hencky_eig_detail
+
+// One cyclic Jacobi sweep (T = float or double): rotations in the (0,1), (0,2), (1,2) planes.
+template <class T>
+HOST_DEVICE FGS_FORCE_INLINE void jacobi_sweep(T& a00, T& a11, T& a22, T& a01, T& a02, T& a12, T Q[9]) {
+  using hencky_eig_detail::jacobi_rotation;
+  jacobi_rotation<0, 1>(a00, a11, a01, a02, a12, Q);
+  jacobi_rotation<0, 2>(a00, a22, a02, a01, a12, Q);
+  jacobi_rotation<1, 2>(a11, a22, a12, a01, a02, Q);
+}
+
+// Eigenvectors of the symmetric E = [[e00 e01 e02] [e01 e11 e12] [e02 e12 e22]], computed in
+// float: kJacobiSweeps cyclic sweeps from Q = I leave an off-diagonal of float round-off
+// (~1e-7 |E|). Q is orthogonal to float precision (row-major, eigenvectors as columns),
+// unsorted, returned in double for the products that follow. The sweeps are written out: a
+// loop here would keep GCC from vectorising callers.
+HOST_DEVICE FGS_FORCE_INLINE void sym3_eigenvectors(const double E[6], double Q[9]) {
+  static_assert(kJacobiSweeps == 4, "sym3_eigenvectors writes out kJacobiSweeps sweeps");
+  float a00 = (float)E[0], a11 = (float)E[1], a22 = (float)E[2], a01 = (float)E[3], a02 = (float)E[4],
+        a12 = (float)E[5];
+  float Qf[9];
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) Qf[i] = (i % 4 == 0) ? 1.f : 0.f;
+  jacobi_sweep(a00, a11, a22, a01, a02, a12, Qf);
+  jacobi_sweep(a00, a11, a22, a01, a02, a12, Qf);
+  jacobi_sweep(a00, a11, a22, a01, a02, a12, Qf);
+  jacobi_sweep(a00, a11, a22, a01, a02, a12, Qf);
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) Q[i] = Qf[i];
+}
+
+// Material parameters of one table row (see MatField).
+struct MaterialRow {
+  float model, mu, lambda, bulk, beta, xi, M;
+};
+
+HOST_DEVICE FGS_FORCE_INLINE MaterialRow material_row(const float* row) {
+  return MaterialRow{row[kMatModel], row[kMatMu], row[kMatLambda], row[kMatBulk],
+                     row[kMatBeta], row[kMatXi], row[kMatM]};
+}
+
+// Constitutive update (elastic or NACC, SPEC §5.3) through the eigen-decomposition of b.
+// F: F_trial in; F_out: F_E; alpha in/out; tau: Kirchhoff stress of F_E. Returns false (outputs
+// meaningless) where the caller must use constitutive_update instead: see the file comment.
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, const float F[9], float* alpha,
+                                                float F_out[9], float tau[9]) {
+  // b - I and det F in double: float products are exact there.
+  double Fd[9];
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
+  double b[6];  // 00 11 22 01 02 12
+  b[0] = Fd[0] * Fd[0] + Fd[1] * Fd[1] + Fd[2] * Fd[2] - 1.0;
+  b[1] = Fd[3] * Fd[3] + Fd[4] * Fd[4] + Fd[5] * Fd[5] - 1.0;
+  b[2] = Fd[6] * Fd[6] + Fd[7] * Fd[7] + Fd[8] * Fd[8] - 1.0;
+  b[3] = Fd[0] * Fd[3] + Fd[1] * Fd[4] + Fd[2] * Fd[5];
+  b[4] = Fd[0] * Fd[6] + Fd[1] * Fd[7] + Fd[2] * Fd[8];
+  b[5] = Fd[3] * Fd[6] + Fd[4] * Fd[7] + Fd[5] * Fd[8];
+  const double det = Fd[0] * (Fd[4] * Fd[8] - Fd[5] * Fd[7]) - Fd[1] * (Fd[3] * Fd[8] - Fd[5] * Fd[6]) +
+                     Fd[2] * (Fd[3] * Fd[7] - Fd[4] * Fd[6]);
+  double Q[9];
+  sym3_eigenvectors(b, Q);
+
+  const float a = *alpha;
+  float probe = a * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
+  // sigma_i^2 = |Q_i^T F|^2 / |Q_i|^2 in double. The rows of Q^T F are orthogonal, so an
+  // eigenvector error delta only enters as delta^2: the stretches keep their relative accuracy
+  // when sigma_min << sigma_max (where lam_min carries an error of ~1e-7 |b - I|), and the
+  // strains theirs when they are tiny (the division removes Q's float normalisation error).
+  double stretch_sq[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) {
+    const double q0 = Q[i], q1 = Q[3 + i], q2 = Q[6 + i];
+    double row_norm2 = 0.0;
+  #pragma GCC unroll 9
+    for (int k = 0; k < 3; ++k) {
+      const double r = q0 * Fd[k] + q1 * Fd[3 + k] + q2 * Fd[6 + k];
+      row_norm2 += r * r;
+    }
+    stretch_sq[i] = row_norm2 / (q0 * q0 + q1 * q1 + q2 * q2);
+  }
+  const double stretch_sq_min = fast_math::min_of(fast_math::min_of(stretch_sq[0], stretch_sq[1]), stretch_sq[2]);
+  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc;
+  // Bitwise & and | (no short circuit) on the conditions: branches would stop the vectoriser.
+  const bool valid = (probe == 0.f) & (det > 0.0) & (stretch_sq_min > (double)kEigMinStretchSq) & (is_elastic | is_nacc);
+
+  // From here on double (the loop stays vectorised, 4 lanes per instruction): in float the
+  // return map lands ~1e-5 K^2 off the yield surface for strains of order 1, where y is a
+  // small difference of large terms.
+  //
+  // Principal Hencky strains eps_i, their trace e = ln det F (from det F itself: the sum of the
+  // eps_i would lose the small volumetric strain of a large deviatoric one to cancellation, and
+  // after a projection the stress is mostly that volumetric part) and the deviator.
+  double eps[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i)
+    eps[i] = 0.5 * fast_math::log1p_d(fast_math::max_of(stretch_sq[i], (double)kEigMinStretchSq) - 1.0);
+  const double e = fast_math::log1p_d(det > 0.0 ? det - 1.0 : 0.0);
+  double dev[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) dev[i] = eps[i] - e * (1.0 / 3.0);
+  const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
+
+  // NACC (computed for every lane, used where the model is NACC).
+  const double mu = m.mu, lambda = m.lambda, K = m.bulk, beta = m.beta, M = m.M;
+  const double softened = fast_math::max_of(-(double)a, 0.0);
+  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.xi * softened));
+  const double p = -K * e;
+  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;  // sqrt(3/2) 2 mu |dev|
+  const bool compression_tip = p > p0;
+  const bool tension_tip = !compression_tip & (p < -beta * p0);
+  const bool tip = is_nacc & (compression_tip | tension_tip);
+  const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
+  const bool ellipse = is_nacc & !tip & (y > kNaccYieldTol * K * K);
+  const double e_tip = compression_tip ? -p0 / K : beta * p0 / K;
+  const double q_new = M * sqrt(fast_math::max_of((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta), 0.0));
+  const double scale = q > 0.0 ? q_new / (q > 0.0 ? q : 1.0) : 0.0;
+  // CD-MPM hardening: alpha moves as if p went to the ellipse along the ray from its centre.
+  const double pc = 0.5 * (1.0 - beta) * p0;
+  const double half_axis = 0.5 * (1.0 + beta) * p0;
+  const double ray = sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
+  const double p_final = pc + M * half_axis / (ray > 0.0 ? ray : 1.0) * (p - pc);
+  const bool harden = ellipse & (p0 > kNaccHardenFloor * K) & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
+  *alpha = (float)(tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : (double)a));
+
+  // The new strain is e_out / 3 + g dev: g = 1 inside the yield surface (and for the elastic
+  // model), the radial scale on the ellipse (volume kept), 0 at the tips.
+  const bool projected = tip | ellipse;
+  const float projected_mask = projected ? 1.f : 0.f;  // GCC 12 cannot vectorise a select on the bool
+  const double g = tip ? 0.0 : (ellipse ? scale : 1.0);
+  const double e_out = tip ? e_tip : e;
+  // F_E = Q diag(exp(eps_out - eps)) Q^T F (F itself where nothing was projected), with Q's
+  // columns normalised (Q is orthogonal only to float precision).
+  double stretch[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) {
+    const double q0 = Q[i], q1 = Q[3 + i], q2 = Q[6 + i];
+    stretch[i] = fast_math::exp_d((g - 1.0) * dev[i] + (e_out - e) * (1.0 / 3.0)) / (q0 * q0 + q1 * q1 + q2 * q2);
+  }
+  double S[9];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 9
+    for (int j = i; j < 3; ++j) {
+      const double t = Q[3 * i] * Q[3 * j] * stretch[0] + Q[3 * i + 1] * Q[3 * j + 1] * stretch[1] +
+                       Q[3 * i + 2] * Q[3 * j + 2] * stretch[2];
+      S[3 * i + j] = t;
+      S[3 * j + i] = t;
+    }
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 9
+    for (int j = 0; j < 3; ++j) {
+      const double projected_entry = S[3 * i] * Fd[j] + S[3 * i + 1] * Fd[3 + j] + S[3 * i + 2] * Fd[6 + j];
+      F_out[3 * i + j] = (projected_mask > 0.f) ? (float)projected_entry : F[3 * i + j];
+    }
+  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T.
+  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * e_out;
+  double d[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) d[i] = 2.0 * mu * g * dev[i] + bulk_term;
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 9
+    for (int j = i; j < 3; ++j) {
+      const float t = (float)(Q[3 * i] * d[0] * Q[3 * j] + Q[3 * i + 1] * d[1] * Q[3 * j + 1] +
+                              Q[3 * i + 2] * d[2] * Q[3 * j + 2]);
+      tau[3 * i + j] = t;
+      tau[3 * j + i] = t;
+    }
+  return valid;
+}
+
+}  // namespace fgs
