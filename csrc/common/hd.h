@@ -11,5 +11,5 @@
 #define FGS_RESTRICT __restrict__
 #define FGS_FORCE_INLINE __attribute__((always_inline)) inline
 #endif
-// FGS_FORCE_INLINE: for functions that a `#pragma omp simd` loop calls; the vectoriser only
+// FGS_FORCE_INLINE: for functions called from loops that must vectorise; the vectoriser only
 // sees through calls that are inlined.

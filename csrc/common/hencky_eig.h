@@ -1,5 +1,5 @@
 // The constitutive update of csrc/common/constitutive.h without an SVD: float32, branch-free,
-// written so that a `#pragma omp simd` loop over particles vectorises it (the CPU kernels run
+// written so that GCC vectorises a loop over particles that calls it (the CPU kernels run
 // it 8 or 16 particles per instruction; see csrc/mpm/constitutive_batch.h).
 //
 // Every model here is isotropic, so the stress and the return map only need the eigen-
@@ -96,11 +96,6 @@ HOST_DEVICE FGS_FORCE_INLINE void sym3_eigenvectors(const double E[6], double Q[
 struct MaterialRow {
   float model, mu, lambda, bulk, beta, xi, M;
 };
-
-HOST_DEVICE FGS_FORCE_INLINE MaterialRow material_row(const float* row) {
-  return MaterialRow{row[kMatModel], row[kMatMu], row[kMatLambda], row[kMatBulk],
-                     row[kMatBeta], row[kMatXi], row[kMatM]};
-}
 
 // Constitutive update (elastic or NACC, SPEC §5.3) through the eigen-decomposition of b.
 // F: F_trial in; F_out: F_E; alpha in/out; tau: Kirchhoff stress of F_E. Returns false (outputs
