@@ -5,12 +5,17 @@ the plastic projection both really run. The step is bins + P2G + grid update + c
 boundaries + G2P with the NACC return map.
 
     python benchmarks/bench_mpm.py [--grid 128] [--particles 50000 200000] [--device cpu]
+
+The compiled backend is timed in --repeats consecutive blocks of --steps steps; the JSON gives the
+median block (ms_per_step, particle_steps_per_s) and the slowest and fastest block, because a
+shared machine's speed drifts between seconds.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import statistics
 import time
 
 import torch
@@ -37,31 +42,36 @@ def two_spheres(n_total: int, grid: int, device: torch.device, backend: str) -> 
                         gravity=(0, 0, -9.8), cfl=0.3, backend=backend, device=device)
 
 
-def measure(solver: CollisionMPM, steps: int) -> float:
-    """Seconds per step, after one warm-up step."""
+def measure(solver: CollisionMPM, steps: int, repeats: int) -> list[float]:
+    """Seconds per step of ``repeats`` consecutive blocks of ``steps`` steps, after one warm-up step."""
     solver.step(solver.stable_dt())
-    if solver.device.type == "cuda":
-        torch.cuda.synchronize()
-    start = time.perf_counter()
-    for _ in range(steps):
-        solver.step(solver.stable_dt())
-    if solver.device.type == "cuda":
-        torch.cuda.synchronize()
-    return (time.perf_counter() - start) / steps
+    seconds = []
+    for _ in range(repeats):
+        if solver.device.type == "cuda":
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        for _ in range(steps):
+            solver.step(solver.stable_dt())
+        if solver.device.type == "cuda":
+            torch.cuda.synchronize()
+        seconds.append((time.perf_counter() - start) / steps)
+    return seconds
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--particles", type=int, nargs="+", default=[50_000, 200_000])
-    parser.add_argument("--steps", type=int, default=30, help="timed steps of the compiled backend")
+    parser.add_argument("--steps", type=int, default=30, help="steps per timed block, compiled backend")
+    parser.add_argument("--repeats", type=int, default=5,
+                        help="timed blocks of the compiled backend; the median block is reported")
     parser.add_argument("--reference-steps", type=int, default=2, help="timed steps of the torch reference")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     device = torch.device(args.device)
     results = []
     for n in args.particles:
-        for backend, steps in (("cpp", args.steps), ("reference", args.reference_steps)):
+        for backend, steps, repeats in (("cpp", args.steps, args.repeats), ("reference", args.reference_steps, 1)):
             if backend == "cpp" and compiled_module() is None:
                 continue
             solver = two_spheres(n, args.grid, device, backend)
@@ -69,12 +79,15 @@ def main() -> None:
             for _ in range(5 if backend == "reference" else 40):
                 solver.step(solver.stable_dt())
             alpha_start = solver.state.alpha.clone()
-            seconds = measure(solver, steps)
+            blocks = measure(solver, steps, repeats)
+            seconds = statistics.median(blocks)
             plastic = float((solver.state.alpha != alpha_start).float().mean())
+            n_particles = len(solver.particles)
             results.append({
-                "backend": backend, "particles": len(solver.particles), "steps": steps,
+                "backend": backend, "particles": n_particles, "steps": steps, "repeats": repeats,
                 "ms_per_step": round(1e3 * seconds, 3),
-                "particle_steps_per_s": round(len(solver.particles) / seconds),
+                "particle_steps_per_s": round(n_particles / seconds),
+                "particle_steps_per_s_range": [round(n_particles / max(blocks)), round(n_particles / min(blocks))],
                 "plastic_fraction_during_timing": round(plastic, 4),
                 "contact_blocks": int(len(solver.last_bins.contact_blocks)) if solver.last_bins else None,
             })

@@ -38,6 +38,10 @@ template <class T>
 HOST_DEVICE FGS_FORCE_INLINE T max_of(T a, T b) {
   return a > b ? a : b;
 }
+template <class T>
+HOST_DEVICE FGS_FORCE_INLINE T abs_of(T a) {
+  return a < T(0) ? -a : a;
+}
 
 constexpr float kLn2Hi = 0.693145751953125f;       // ln 2 with its low mantissa bits zero
 constexpr float kLn2Lo = 1.428606820309417232e-6f;  // ln 2 - kLn2Hi

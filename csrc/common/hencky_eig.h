@@ -92,29 +92,87 @@ HOST_DEVICE FGS_FORCE_INLINE void sym3_eigenvectors(const double E[6], double Q[
   for (int i = 0; i < 9; ++i) Q[i] = Qf[i];
 }
 
-// Material parameters of one table row (see MatField).
-struct MaterialRow {
-  float model, mu, lambda, bulk, beta, xi, M;
-};
-
-// Constitutive update (elastic or NACC, SPEC §5.3) through the eigen-decomposition of b.
-// F: F_trial in; F_out: F_E; alpha in/out; tau: Kirchhoff stress of F_E. Returns false (outputs
-// meaningless) where the caller must use constitutive_update instead: see the file comment.
-HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, const float F[9], float* alpha,
-                                                float F_out[9], float tau[9]) {
-  // b - I and det F in double: float products are exact there.
-  double Fd[9];
+// b - I = F F^T - I (entries 00 11 22 01 02 12) and det F, in double: float products are exact
+// there. Fd receives F in double.
+HOST_DEVICE FGS_FORCE_INLINE double cauchy_green_minus_identity(const float F[9], double Fd[9], double b[6]) {
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) Fd[i] = F[i];
-  double b[6];  // 00 11 22 01 02 12
   b[0] = Fd[0] * Fd[0] + Fd[1] * Fd[1] + Fd[2] * Fd[2] - 1.0;
   b[1] = Fd[3] * Fd[3] + Fd[4] * Fd[4] + Fd[5] * Fd[5] - 1.0;
   b[2] = Fd[6] * Fd[6] + Fd[7] * Fd[7] + Fd[8] * Fd[8] - 1.0;
   b[3] = Fd[0] * Fd[3] + Fd[1] * Fd[4] + Fd[2] * Fd[5];
   b[4] = Fd[0] * Fd[6] + Fd[1] * Fd[7] + Fd[2] * Fd[8];
   b[5] = Fd[3] * Fd[6] + Fd[4] * Fd[7] + Fd[5] * Fd[8];
-  const double det = Fd[0] * (Fd[4] * Fd[8] - Fd[5] * Fd[7]) - Fd[1] * (Fd[3] * Fd[8] - Fd[5] * Fd[6]) +
-                     Fd[2] * (Fd[3] * Fd[7] - Fd[4] * Fd[6]);
+  return Fd[0] * (Fd[4] * Fd[8] - Fd[5] * Fd[7]) - Fd[1] * (Fd[3] * Fd[8] - Fd[5] * Fd[6]) +
+         Fd[2] * (Fd[3] * Fd[7] - Fd[4] * Fd[6]);
+}
+
+// Material parameters of one table row (see MatField).
+struct MaterialRow {
+  float model, mu, lambda, bulk, beta, xi, M;
+};
+
+// The NACC return map (SPEC §5.3) on the strain invariants, in double: what both update paths
+// below need. e: volumetric Hencky strain ln det F; dev_norm: |dev eps|; alpha: the old alpha.
+struct InvariantReturn {
+  double g;          // new dev eps = g dev eps: 1 inside (and for the elastic model), the radial
+                     // scale on the ellipse (volume kept), 0 at the tips
+  double e_out;      // new volumetric strain
+  double alpha;      // new alpha
+  double y;          // yield function of the trial state
+  float projected;   // 1 if the state was projected (a float: GCC 12 cannot vectorise a select on a bool)
+  float tip;         // 1 if projected to a tip
+};
+
+HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const MaterialRow& m, float alpha, double e,
+                                                         double dev_norm) {
+  const bool is_nacc = m.model == (float)kModelNacc;
+  const double mu = m.mu, K = m.bulk, beta = m.beta, M = m.M;
+  const double a = alpha;
+  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.xi * fast_math::max_of(-a, 0.0)));
+  const double p = -K * e;
+  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;  // sqrt(3/2) 2 mu |dev|
+  const bool compression_tip = p > p0;
+  const bool tension_tip = !compression_tip & (p < -beta * p0);
+  const bool tip = is_nacc & (compression_tip | tension_tip);
+  const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
+  const bool ellipse = is_nacc & !tip & (y > kNaccYieldTol * K * K);
+  const double e_tip = compression_tip ? -p0 / K : beta * p0 / K;
+  const double q_new = M * sqrt(fast_math::max_of((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta), 0.0));
+  const double scale = q > 0.0 ? q_new / (q > 0.0 ? q : 1.0) : 0.0;
+  // CD-MPM hardening: alpha moves as if p went to the ellipse along the ray from its centre.
+  const double pc = 0.5 * (1.0 - beta) * p0;
+  const double half_axis = 0.5 * (1.0 + beta) * p0;
+  const double ray = sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
+  const double p_final = pc + M * half_axis / (ray > 0.0 ? ray : 1.0) * (p - pc);
+  const bool harden = ellipse & (p0 > kNaccHardenFloor * K) & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
+  InvariantReturn r;
+  r.alpha = tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : a);
+  r.g = tip ? 0.0 : (ellipse ? scale : 1.0);
+  r.e_out = tip ? e_tip : e;
+  r.y = y;
+  r.projected = (tip | ellipse) ? 1.f : 0.f;
+  r.tip = tip ? 1.f : 0.f;
+  return r;
+}
+
+// What the return map did to one particle, for projected_deformation: F_E = Q diag(exp(log_
+// stretch_i)) Q^T F / |Q_i|^2 where `projected` is non-zero, F itself elsewhere.
+struct EigProjection {
+  double Q[9];             // eigenvectors of b (columns, orthogonal to float precision)
+  double log_stretch[3];   // eps_out_i - eps_i
+  float projected;         // 1 if the state was projected onto the yield surface, else 0
+};
+
+// Constitutive update (elastic or NACC, SPEC §5.3) through the eigen-decomposition of b, first
+// half: the return map's decisions, alpha and the Kirchhoff stress of F_E. F: F_trial; alpha
+// in/out; tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E.
+// Returns false (outputs meaningless) where the caller must use constitutive_update instead:
+// see the file comment.
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, const float F[9], float* alpha,
+                                                float tau[9], EigProjection* proj) {
+  double Fd[9], b[6];
+  const double det = cauchy_green_minus_identity(F, Fd, b);
   double Q[9];
   sym3_eigenvectors(b, Q);
 
@@ -160,41 +218,46 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, 
   for (int i = 0; i < 3; ++i) dev[i] = eps[i] - e * (1.0 / 3.0);
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
 
-  // NACC (computed for every lane, used where the model is NACC).
-  const double mu = m.mu, lambda = m.lambda, K = m.bulk, beta = m.beta, M = m.M;
-  const double softened = fast_math::max_of(-(double)a, 0.0);
-  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.xi * softened));
-  const double p = -K * e;
-  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;  // sqrt(3/2) 2 mu |dev|
-  const bool compression_tip = p > p0;
-  const bool tension_tip = !compression_tip & (p < -beta * p0);
-  const bool tip = is_nacc & (compression_tip | tension_tip);
-  const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
-  const bool ellipse = is_nacc & !tip & (y > kNaccYieldTol * K * K);
-  const double e_tip = compression_tip ? -p0 / K : beta * p0 / K;
-  const double q_new = M * sqrt(fast_math::max_of((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta), 0.0));
-  const double scale = q > 0.0 ? q_new / (q > 0.0 ? q : 1.0) : 0.0;
-  // CD-MPM hardening: alpha moves as if p went to the ellipse along the ray from its centre.
-  const double pc = 0.5 * (1.0 - beta) * p0;
-  const double half_axis = 0.5 * (1.0 + beta) * p0;
-  const double ray = sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
-  const double p_final = pc + M * half_axis / (ray > 0.0 ? ray : 1.0) * (p - pc);
-  const bool harden = ellipse & (p0 > kNaccHardenFloor * K) & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
-  *alpha = (float)(tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : (double)a));
+  const double mu = m.mu, lambda = m.lambda;
+  const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
+  *alpha = (float)ret.alpha;
+  proj->projected = ret.projected;
+  const double g = ret.g;
+  const double e_out = ret.e_out;
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) proj->Q[i] = Q[i];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) proj->log_stretch[i] = (g - 1.0) * dev[i] + (e_out - e) * (1.0 / 3.0);
+  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T.
+  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * e_out;
+  double d[3];
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i) d[i] = 2.0 * mu * g * dev[i] + bulk_term;
+#pragma GCC unroll 9
+  for (int i = 0; i < 3; ++i)
+#pragma GCC unroll 9
+    for (int j = i; j < 3; ++j) {
+      const float t = (float)(Q[3 * i] * d[0] * Q[3 * j] + Q[3 * i + 1] * d[1] * Q[3 * j + 1] +
+                              Q[3 * i + 2] * d[2] * Q[3 * j + 2]);
+      tau[3 * i + j] = t;
+      tau[3 * j + i] = t;
+    }
+  return valid;
+}
 
-  // The new strain is e_out / 3 + g dev: g = 1 inside the yield surface (and for the elastic
-  // model), the radial scale on the ellipse (volume kept), 0 at the tips.
-  const bool projected = tip | ellipse;
-  const float projected_mask = projected ? 1.f : 0.f;  // GCC 12 cannot vectorise a select on the bool
-  const double g = tip ? 0.0 : (ellipse ? scale : 1.0);
-  const double e_out = tip ? e_tip : e;
-  // F_E = Q diag(exp(eps_out - eps)) Q^T F (F itself where nothing was projected), with Q's
-  // columns normalised (Q is orthogonal only to float precision).
+
+// Second half of the update: F_E = Q diag(exp(eps_out - eps)) Q^T F where the state was projected
+// (with Q's columns normalised: Q is orthogonal only to float precision), F itself elsewhere.
+HOST_DEVICE FGS_FORCE_INLINE void projected_deformation(const EigProjection& proj, const float F[9], float F_out[9]) {
+  const double* Q = proj.Q;
+  double Fd[9];
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) Fd[i] = F[i];
   double stretch[3];
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i) {
     const double q0 = Q[i], q1 = Q[3 + i], q2 = Q[6 + i];
-    stretch[i] = fast_math::exp_d((g - 1.0) * dev[i] + (e_out - e) * (1.0 / 3.0)) / (q0 * q0 + q1 * q1 + q2 * q2);
+    stretch[i] = fast_math::exp_d(proj.log_stretch[i]) / (q0 * q0 + q1 * q1 + q2 * q2);
   }
   double S[9];
 #pragma GCC unroll 9
@@ -211,23 +274,150 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, 
 #pragma GCC unroll 9
     for (int j = 0; j < 3; ++j) {
       const double projected_entry = S[3 * i] * Fd[j] + S[3 * i + 1] * Fd[3 + j] + S[3 * i + 2] * Fd[6 + j];
-      F_out[3 * i + j] = (projected_mask > 0.f) ? (float)projected_entry : F[3 * i + j];
+      F_out[3 * i + j] = (proj.projected > 0.f) ? (float)projected_entry : F[3 * i + j];
     }
-  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T.
-  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * e_out;
-  double d[3];
+}
+
+// The whole update for one particle: F: F_trial in; F_out: F_E; alpha in/out; tau: Kirchhoff
+// stress of F_E. Returns false where the caller must use constitutive_update instead.
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, const float F[9], float* alpha,
+                                                float F_out[9], float tau[9]) {
+  EigProjection proj;
+  const bool valid = constitutive_stress_eig(m, F, alpha, tau, &proj);
+  projected_deformation(proj, F, F_out);
+  return valid;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Small strains: no eigen-decomposition at all.
+//
+// While |b - I| is small the Hencky strain is a power series, eps = 1/2 log(I + X) with
+// X = b - I, log(I + X) = sum_k (-1)^(k+1) X^k / k, and the return map only needs invariants:
+// e = ln det F, |dev eps|, then tau = 2 mu g dev eps + K e_out I and
+// F_E = exp(Z) F with Z = eps_out - eps = (g - 1) dev eps + (e_out - e) / 3 I (the left stretch
+// V = exp(eps) of F = V R is replaced by exp(eps_out); exp(Z) is a series too).
+// With |X|_F <= kSmallStrainNorm (stretches within about 5 % of 1) the log series to X^7 is exact
+// to |X|^8 / 8, ~1e-8 relative, and with |Z|_F <= kSmallStrainNorm the exp series to Z^6 to
+// ~2e-11; both run in float (the products are well scaled), e in double from det F as on the
+// eigen path, the return map's algebra in double (nacc_invariant_return). States within the
+// float error of |dev eps| of the yield surface are left to the eigen path, so both paths decide
+// alike.
+
+constexpr float kSmallStrainNorm = 0.1f;  // |b - I|_F and |eps_out - eps|_F bound of the series path
+
+namespace hencky_eig_detail {
+
+// R = X P for symmetric X and a polynomial P of X (so R is symmetric); entries 00 11 22 01 02 12.
+HOST_DEVICE FGS_FORCE_INLINE void sym3_product(const float X[6], const float P[6], float R[6]) {
+  R[0] = X[0] * P[0] + X[3] * P[3] + X[4] * P[4];
+  R[1] = X[3] * P[3] + X[1] * P[1] + X[5] * P[5];
+  R[2] = X[4] * P[4] + X[5] * P[5] + X[2] * P[2];
+  R[3] = X[0] * P[3] + X[3] * P[1] + X[4] * P[5];
+  R[4] = X[0] * P[4] + X[3] * P[5] + X[4] * P[2];
+  R[5] = X[3] * P[4] + X[1] * P[5] + X[5] * P[2];
+}
+
+// One Horner step P <- c I + X P.
+HOST_DEVICE FGS_FORCE_INLINE void horner_step(const float X[6], float c, float P[6]) {
+  float R[6];
+  sym3_product(X, P, R);
+#pragma GCC unroll 6
+  for (int i = 0; i < 6; ++i) P[i] = R[i] + (i < 3 ? c : 0.f);
+}
+
+HOST_DEVICE FGS_FORCE_INLINE float sym3_norm_sq(const float X[6]) {
+  return X[0] * X[0] + X[1] * X[1] + X[2] * X[2] + 2.f * (X[3] * X[3] + X[4] * X[4] + X[5] * X[5]);
+}
+
+}  // namespace hencky_eig_detail
+
+// The constitutive update at small strain. F: F_trial in; F_out: F_E; alpha in/out; tau:
+// Kirchhoff stress of F_E. Returns false (outputs meaningless) where the caller must run
+// constitutive_update_eig instead: strains beyond kSmallStrainNorm, a state within float error
+// of the yield surface, or anything the eigen path rejects.
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9], float* alpha,
+                                                  float F_out[9], float tau[9]) {
+  using hencky_eig_detail::horner_step;
+  using hencky_eig_detail::sym3_norm_sq;
+  using hencky_eig_detail::sym3_product;
+  double Fd[9], b[6];
+  const double det = cauchy_green_minus_identity(F, Fd, b);
+  float X[6];
+#pragma GCC unroll 6
+  for (int i = 0; i < 6; ++i) X[i] = (float)b[i];
+  const float x_norm_sq = sym3_norm_sq(X);
+  const float a = *alpha;
+  float probe = a * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
 #pragma GCC unroll 9
-  for (int i = 0; i < 3; ++i) d[i] = 2.0 * mu * g * dev[i] + bulk_term;
+  for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
+
+  // log(I + X) = X (I - X/2 + X^2/3 - X^3/4 + X^4/5 - X^5/6 + X^6/7), by Horner.
+  float P[6] = {1.f / 7.f, 1.f / 7.f, 1.f / 7.f, 0.f, 0.f, 0.f};
+  horner_step(X, -1.f / 6.f, P);
+  horner_step(X, 1.f / 5.f, P);
+  horner_step(X, -1.f / 4.f, P);
+  horner_step(X, 1.f / 3.f, P);
+  horner_step(X, -1.f / 2.f, P);
+  horner_step(X, 1.f, P);
+  float L[6];  // log(I + X) = 2 eps
+  sym3_product(X, P, L);
+  const double e = fast_math::log1p_d(det > 0.0 ? det - 1.0 : 0.0);
+  double dev[6];  // dev eps = L / 2 - e / 3 I
+#pragma GCC unroll 6
+  for (int i = 0; i < 6; ++i) dev[i] = 0.5 * (double)L[i] - (i < 3 ? e * (1.0 / 3.0) : 0.0);
+  const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2] +
+                               2.0 * (dev[3] * dev[3] + dev[4] * dev[4] + dev[5] * dev[5]));
+
+  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc;
+  const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
+  // The float error of |dev eps| (a few ulp of |eps| <= |X|) moves y by at most dy: closer than
+  // that to the threshold, the decision is left to the eigen path.
+  const double mu = m.mu, K = m.bulk, beta = m.beta;
+  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;
+  const double dq = 1.2247448713915890491 * 2.0 * mu * (1e-6 * (double)sqrtf(x_norm_sq) + 1e-12);
+  const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
+  // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or
+  // the model is elastic (a double, not a bool: GCC 12 cannot vectorise that mix of conditions).
+  const double decided = fast_math::max_of(fast_math::abs_of(ret.y - kNaccYieldTol * K * K) - dy,
+                                           (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
+  *alpha = (float)ret.alpha;
+
+  // Z = eps_out - eps and exp(Z) = I + Z P, P = sum_k Z^(k-1) / k! for k = 1..6, by Horner.
+  const double shift = (ret.e_out - e) * (1.0 / 3.0);
+  float Z[6];
+#pragma GCC unroll 6
+  for (int i = 0; i < 6; ++i) Z[i] = (float)((ret.g - 1.0) * dev[i] + (i < 3 ? shift : 0.0));
+  const float z_norm_sq = sym3_norm_sq(Z);
+  float E[6] = {1.f / 720.f, 1.f / 720.f, 1.f / 720.f, 0.f, 0.f, 0.f};
+  horner_step(Z, 1.f / 120.f, E);
+  horner_step(Z, 1.f / 24.f, E);
+  horner_step(Z, 1.f / 6.f, E);
+  horner_step(Z, 1.f / 2.f, E);
+  horner_step(Z, 1.f, E);
+  float expZ[6];
+  sym3_product(Z, E, expZ);
+  expZ[0] += 1.f;
+  expZ[1] += 1.f;
+  expZ[2] += 1.f;
+  const float S[9] = {expZ[0], expZ[3], expZ[4], expZ[3], expZ[1], expZ[5], expZ[4], expZ[5], expZ[2]};
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i)
 #pragma GCC unroll 9
-    for (int j = i; j < 3; ++j) {
-      const float t = (float)(Q[3 * i] * d[0] * Q[3 * j] + Q[3 * i + 1] * d[1] * Q[3 * j + 1] +
-                              Q[3 * i + 2] * d[2] * Q[3 * j + 2]);
-      tau[3 * i + j] = t;
-      tau[3 * j + i] = t;
+    for (int j = 0; j < 3; ++j) {
+      const float projected_entry = S[3 * i] * F[j] + S[3 * i + 1] * F[3 + j] + S[3 * i + 2] * F[6 + j];
+      F_out[3 * i + j] = (ret.projected > 0.f) ? projected_entry : F[3 * i + j];
     }
-  return valid;
+
+  const double bulk_term = ((double)m.lambda + (2.0 / 3.0) * mu) * ret.e_out;
+  const double shear = 2.0 * mu * ret.g;
+  const float t00 = (float)(shear * dev[0] + bulk_term), t11 = (float)(shear * dev[1] + bulk_term),
+              t22 = (float)(shear * dev[2] + bulk_term), t01 = (float)(shear * dev[3]),
+              t02 = (float)(shear * dev[4]), t12 = (float)(shear * dev[5]);
+  tau[0] = t00; tau[1] = t01; tau[2] = t02;
+  tau[3] = t01; tau[4] = t11; tau[5] = t12;
+  tau[6] = t02; tau[7] = t12; tau[8] = t22;
+  return (probe == 0.f) & (x_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
+         (z_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > 0.0) & (is_elastic | is_nacc) & (decided > 0.0);
 }
 
 }  // namespace fgs

@@ -84,30 +84,100 @@ struct ConstitutiveBatch {
     }
   }
 
-  // constitutive_update_eig on every lane; arrays are [component][lane].
+  // Lane l's F (into Fl) and material row, from [component][lane] arrays.
+  static FGS_FORCE_INLINE MaterialRow load_lane(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT rows, int l,
+                                                float Fl[9]) {
+#pragma GCC unroll 9
+    for (int i = 0; i < 9; ++i) Fl[i] = F_in[i * kBatchLanes + l];
+    return MaterialRow{rows[kMatModel * kBatchLanes + l], rows[kMatMu * kBatchLanes + l],
+                       rows[kMatLambda * kBatchLanes + l], rows[kMatBulk * kBatchLanes + l],
+                       rows[kMatBeta * kBatchLanes + l],  rows[kMatXi * kBatchLanes + l],
+                       rows[kMatM * kBatchLanes + l]};
+  }
+
+  // constitutive_update_eig on every lane; arrays are [component][lane]. Two vectorised loops:
+  // the stress half on every lane, then F_E = projected_deformation only if some lane was
+  // projected (most batches stay inside the yield surface: F_E = F_trial, no exp needed).
   static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
                           const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E, float* FGS_RESTRICT alpha_new,
                           float* FGS_RESTRICT tau_out, int32_t* FGS_RESTRICT ok) {
+    double Q[9][kBatchLanes], log_stretch[3][kBatchLanes];
+    float projected[kBatchLanes];
     // `#pragma omp simd` would turn the callee's by-reference locals into per-lane arrays before
     // inlining and then fail to vectorise; the plain vectoriser after inlining does not.
 #pragma GCC ivdep
     for (int l = 0; l < kBatchLanes; ++l) {
-      float Fl[9], Fo[9], tl[9];
-#pragma GCC unroll 9
-      for (int i = 0; i < 9; ++i) Fl[i] = F_in[i * kBatchLanes + l];
-      const MaterialRow m{rows[kMatModel * kBatchLanes + l], rows[kMatMu * kBatchLanes + l],
-                          rows[kMatLambda * kBatchLanes + l], rows[kMatBulk * kBatchLanes + l],
-                          rows[kMatBeta * kBatchLanes + l], rows[kMatXi * kBatchLanes + l],
-                          rows[kMatM * kBatchLanes + l]};
+      float Fl[9], tl[9];
+      const MaterialRow m = load_lane(F_in, rows, l, Fl);
       float a = alpha[l];
-      ok[l] = constitutive_update_eig(m, Fl, &a, Fo, tl) ? 1 : 0;
+      EigProjection proj;
+      ok[l] = constitutive_stress_eig(m, Fl, &a, tl, &proj) ? 1 : 0;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
-        F_E[i * kBatchLanes + l] = Fo[i];
         tau_out[i * kBatchLanes + l] = tl[i];
+        Q[i][l] = proj.Q[i];
+      }
+#pragma GCC unroll 9
+      for (int i = 0; i < 3; ++i) log_stretch[i][l] = proj.log_stretch[i];
+      projected[l] = proj.projected;
+      alpha_new[l] = a;
+    }
+    float any_projected = 0.f;
+    for (int l = 0; l < kBatchLanes; ++l) any_projected += projected[l];
+    if (any_projected == 0.f) {
+      for (int k = 0; k < 9 * kBatchLanes; ++k) F_E[k] = F_in[k];
+      return;
+    }
+#pragma GCC ivdep
+    for (int l = 0; l < kBatchLanes; ++l) {
+      EigProjection proj;
+#pragma GCC unroll 9
+      for (int i = 0; i < 9; ++i) proj.Q[i] = Q[i][l];
+#pragma GCC unroll 9
+      for (int i = 0; i < 3; ++i) proj.log_stretch[i] = log_stretch[i][l];
+      proj.projected = projected[l];
+      float Fl[9], Fo[9];
+#pragma GCC unroll 9
+      for (int i = 0; i < 9; ++i) Fl[i] = F_in[i * kBatchLanes + l];
+      projected_deformation(proj, Fl, Fo);
+#pragma GCC unroll 9
+      for (int i = 0; i < 9; ++i) F_E[i * kBatchLanes + l] = Fo[i];
+    }
+  }
+
+  // constitutive_small_strain on every lane: small[l] = 1 where it applies, and there F_out,
+  // alpha_out and tau hold the result. The other lanes' outputs are meaningless.
+  void run_small_strain(int32_t small[kBatchLanes]) {
+    FlushDenormals guard;
+    small_strain_lanes(&F[0][0], alpha_in, &row[0][0], &F_out[0][0], alpha_out, &tau[0][0], small);
+  }
+
+  static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
+                                 const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
+                                 float* FGS_RESTRICT alpha_new, float* FGS_RESTRICT tau_out,
+                                 int32_t* FGS_RESTRICT small) {
+#pragma GCC ivdep
+    for (int l = 0; l < kBatchLanes; ++l) {
+      float Fl[9], Fo[9], tl[9];
+      const MaterialRow m = load_lane(F_in, rows, l, Fl);
+      float a = alpha[l];
+      small[l] = constitutive_small_strain(m, Fl, &a, Fo, tl) ? 1 : 0;
+#pragma GCC unroll 9
+      for (int i = 0; i < 9; ++i) {
+        tau_out[i * kBatchLanes + l] = tl[i];
+        F_E[i * kBatchLanes + l] = Fo[i];
       }
       alpha_new[l] = a;
     }
+  }
+
+  // Lane l takes lane `from` of another batch's inputs.
+  void set_from(int l, const ConstitutiveBatch& other, int from) {
+    #pragma GCC unroll 9
+    for (int i = 0; i < 9; ++i) F[i][l] = other.F[i][from];
+    alpha_in[l] = other.alpha_in[from];
+    #pragma GCC unroll 9
+    for (int k = 0; k < kMatFields; ++k) row[k][l] = other.row[k][from];
   }
 
   void get(int l, float* F_E, float* alpha, float* tau_out) const {
@@ -118,6 +188,68 @@ struct ConstitutiveBatch {
     }
     *alpha = alpha_out[l];
   }
+};
+
+// Runs a stream of particles through the constitutive update, two tiers deep: every particle
+// first takes the small-strain path (constitutive_small_strain, no eigen-decomposition), kBatchLanes
+// at a time; those it rejects (strained beyond ~5 %, on or near the yield surface, inverted, ...)
+// are queued and run kBatchLanes at a time through the full update (ConstitutiveBatch::run).
+// Every lane computes only from its own inputs, so a particle's result does not depend on which
+// particles share its batches (and so not on the number of threads).
+//
+// Results come back through store(id, F_E, alpha, tau), in no particular order; call finish()
+// after the last push().
+class ConstitutiveStream {
+ public:
+  template <class Store>
+  void push(long long id, const float F_trial[9], float alpha, const float* mat_row, Store&& store) {
+    fresh_.set(n_fresh_, F_trial, alpha, mat_row);
+    fresh_id_[n_fresh_++] = id;
+    if (n_fresh_ == kBatchLanes) run_fresh(store);
+  }
+
+  template <class Store>
+  void finish(Store&& store) {
+    if (n_fresh_ > 0) run_fresh(store);
+    if (n_slow_ > 0) run_slow(store);
+  }
+
+ private:
+  template <class Store>
+  void run_fresh(Store& store) {
+    fresh_.pad(n_fresh_);
+    int32_t small[kBatchLanes];
+    fresh_.run_small_strain(small);
+    for (int l = 0; l < n_fresh_; ++l) {
+      if (small[l]) {
+        emit(fresh_, l, fresh_id_[l], store);
+        continue;
+      }
+      slow_.set_from(n_slow_, fresh_, l);
+      slow_id_[n_slow_++] = fresh_id_[l];
+      if (n_slow_ == kBatchLanes) run_slow(store);
+    }
+    n_fresh_ = 0;
+  }
+
+  template <class Store>
+  void run_slow(Store& store) {
+    slow_.pad(n_slow_);
+    slow_.run(n_slow_);
+    for (int l = 0; l < n_slow_; ++l) emit(slow_, l, slow_id_[l], store);
+    n_slow_ = 0;
+  }
+
+  template <class Store>
+  static void emit(const ConstitutiveBatch& batch, int l, long long id, Store& store) {
+    float F_E[9], alpha, tau[9];
+    batch.get(l, F_E, &alpha, tau);
+    store(id, F_E, alpha, tau);
+  }
+
+  ConstitutiveBatch fresh_, slow_;
+  long long fresh_id_[kBatchLanes], slow_id_[kBatchLanes];
+  int n_fresh_ = 0, n_slow_ = 0;
 };
 
 }  // namespace fgs

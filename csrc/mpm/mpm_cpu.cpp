@@ -115,14 +115,32 @@ constexpr int kWindowNodes = kWindow * kWindow * kWindow;
 
 namespace {
 
+// The particles of a cell lie scattered in memory (the arrays stay in the caller's order), so
+// P2G asks for the data of the particle kPrefetchAhead places later in the cell while it
+// scatters the current one.
+constexpr int kPrefetchAhead = 6;
+
+inline void prefetch_particle(const ParticleArrays& p, int q) {
+  __builtin_prefetch(p.x + 3 * q);
+  __builtin_prefetch(p.v + 3 * q);
+  __builtin_prefetch(p.C + 9 * q);
+  __builtin_prefetch(p.C + 9 * q + 8);
+  __builtin_prefetch(p.stress + 9 * q);
+  __builtin_prefetch(p.stress + 9 * q + 8);
+  __builtin_prefetch(p.mass + q);
+  __builtin_prefetch(p.rest_volume + q);
+}
+
 // Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
 // the window's first node.
 void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                      const int origin[3], Record* FGS_RESTRICT window) {
   std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
   const float dx = geo.dx;
-  for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
+  const int end = bins.cell_start[cell + 1];
+  for (int it = bins.cell_start[cell]; it < end; ++it) {
     const int q = bins.order[it];
+    if (it + kPrefetchAhead < end) prefetch_particle(p, bins.order[it + kPrefetchAhead]);
     AxisWeights aw[3];
     for (int d = 0; d < 3; ++d) aw[d] = axis_weights((p.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
     const float m = p.mass[q];
@@ -268,6 +286,13 @@ void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeomet
 
 namespace {
 
+// True if all nine entries are finite (x * 0 is NaN exactly for a non-finite x; summed as a tree).
+inline bool finite_sum9(const float a[9]) {
+  const float s = ((a[0] * 0.f + a[1] * 0.f) + (a[2] * 0.f + a[3] * 0.f)) +
+                  ((a[4] * 0.f + a[5] * 0.f) + (a[6] * 0.f + a[7] * 0.f)) + a[8] * 0.f;
+  return s == 0.f;
+}
+
 using Lane4 = float __attribute__((vector_size(16)));
 
 // g2p_gather (csrc/common/mpm_transfer.h) with the node velocities as 4-wide vectors: per node
@@ -325,34 +350,31 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
                  const float* grid_velocity, G2POutputs out) {
   long long clamped = 0, first_bad = n;
   float max_speed_sq = 0.f;
-  const long long n_batches = (n + kBatchLanes - 1) / kBatchLanes;
-#pragma omp parallel for schedule(static) reduction(+ : clamped) reduction(min : first_bad) \
-    reduction(max : max_speed_sq)
-  for (long long batch_index = 0; batch_index < n_batches; ++batch_index) {
-    // Gather kBatchLanes particles, run their return maps together, store.
-    const long long first = batch_index * kBatchLanes;
-    const int count = (int)std::min<long long>(kBatchLanes, n - first);
-    ConstitutiveBatch batch;
-    for (int l = 0; l < count; ++l) {
-      const long long q = first + l;
+#pragma omp parallel reduction(+ : clamped) reduction(min : first_bad) reduction(max : max_speed_sq)
+  {
+    // Gather each particle, hand F_trial to the thread's constitutive stream, store what it returns.
+    ConstitutiveStream stream;
+    auto store = [&](long long q, const float F_E[9], float alpha, const float tau[9]) {
+      g2p_store_material(q, in, out, F_E, alpha, tau);
+      if (!finite_sum9(F_E)) first_bad = q < first_bad ? q : first_bad;
+    };
+#pragma omp for schedule(static) nowait
+    for (long long q = 0; q < n; ++q) {
       float F_trial[9];
       clamped += g2p_gather_cpu(q, in, geo, dt, grid_velocity, out, F_trial) ? 1 : 0;
-      batch.set(l, F_trial, in.alpha[q], g2p_material_row(q, in));
-    }
-    batch.pad(count);
-    batch.run(count);
-    for (int l = 0; l < count; ++l) {
-      const long long q = first + l;
-      float F_E[9], alpha, tau[9];
-      batch.get(l, F_E, &alpha, tau);
-      g2p_store_material(q, in, out, F_E, alpha, tau);
-      if (!particle_is_finite(q, out)) {
+      const float* xq = out.x + 3 * q;
+      const float* vq = out.v + 3 * q;
+      // x * 0 is NaN exactly when x is not finite; a tree of sums keeps the chain short.
+      const float probe = ((xq[0] * 0.f + xq[1] * 0.f) + (xq[2] * 0.f + vq[0] * 0.f)) + (vq[1] * 0.f + vq[2] * 0.f);
+      if (probe == 0.f) {
+        const float speed_sq = vq[0] * vq[0] + vq[1] * vq[1] + vq[2] * vq[2];
+        max_speed_sq = speed_sq > max_speed_sq ? speed_sq : max_speed_sq;
+      } else {
         first_bad = q < first_bad ? q : first_bad;
-        continue;
       }
-      const float speed_sq = particle_speed_sq(q, out);
-      max_speed_sq = speed_sq > max_speed_sq ? speed_sq : max_speed_sq;
+      stream.push(q, F_trial, in.alpha[q], g2p_material_row(q, in), store);
     }
+    stream.finish(store);
   }
   return G2PStats{clamped, first_bad < n ? first_bad : -1, sqrtf(max_speed_sq)};
 }
