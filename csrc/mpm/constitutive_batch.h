@@ -1,9 +1,10 @@
 // The CPU constitutive update, kBatchLanes particles at a time: the particles are laid out
-// structure-of-arrays so that GCC's loop vectoriser turns constitutive_update_eig
-// (csrc/common/hencky_eig.h) into vector code; particles that path does not handle (inverted
-// or nearly singular F, non-finite input, unknown model) are redone one by one with the SVD
-// path, constitutive_update (csrc/common/constitutive.h). Each particle's result depends only
-// on its own inputs, never on the other lanes of its batch.
+// structure-of-arrays so that GCC's loop vectoriser turns constitutive_small_strain and
+// constitutive_update_eig (csrc/common/hencky_eig.h) into vector code. ConstitutiveStream (at
+// the end) runs the first and sends what it rejects to the second; particles the eigen path
+// does not handle (inverted or nearly singular F, non-finite input, unknown model) are redone
+// one by one with the SVD path, constitutive_update (csrc/common/constitutive.h). Each
+// particle's result depends only on its own inputs, never on the other lanes of its batch.
 #pragma once
 #include <cstdint>
 #if defined(__SSE__)
