@@ -119,6 +119,7 @@ struct InvariantReturn {
                      // scale on the ellipse (volume kept), 0 at the tips
   double e_out;      // new volumetric strain
   double alpha;      // new alpha
+  double q;          // sqrt(3/2) 2 mu |dev eps| of the trial state
   double y;          // yield function of the trial state
   float projected;   // 1 if the state was projected (a float: GCC 12 cannot vectorise a select on a bool)
   float tip;         // 1 if projected to a tip
@@ -150,6 +151,7 @@ HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const Materia
   r.alpha = tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : a);
   r.g = tip ? 0.0 : (ellipse ? scale : 1.0);
   r.e_out = tip ? e_tip : e;
+  r.q = q;
   r.y = y;
   r.projected = (tip | ellipse) ? 1.f : 0.f;
   r.tip = tip ? 1.f : 0.f;
@@ -278,16 +280,6 @@ HOST_DEVICE FGS_FORCE_INLINE void projected_deformation(const EigProjection& pro
     }
 }
 
-// The whole update for one particle: F: F_trial in; F_out: F_E; alpha in/out; tau: Kirchhoff
-// stress of F_E. Returns false where the caller must use constitutive_update instead.
-HOST_DEVICE FGS_FORCE_INLINE bool constitutive_update_eig(const MaterialRow& m, const float F[9], float* alpha,
-                                                float F_out[9], float tau[9]) {
-  EigProjection proj;
-  const bool valid = constitutive_stress_eig(m, F, alpha, tau, &proj);
-  projected_deformation(proj, F, F_out);
-  return valid;
-}
-
 // ---------------------------------------------------------------------------------------------
 // Small strains: no eigen-decomposition at all.
 //
@@ -333,7 +325,7 @@ HOST_DEVICE FGS_FORCE_INLINE float sym3_norm_sq(const float X[6]) {
 
 // The constitutive update at small strain. F: F_trial in; F_out: F_E; alpha in/out; tau:
 // Kirchhoff stress of F_E. Returns false (outputs meaningless) where the caller must run
-// constitutive_update_eig instead: strains beyond kSmallStrainNorm, a state within float error
+// the eigen path (constitutive_stress_eig) instead: strains beyond kSmallStrainNorm, a state within float error
 // of the yield surface, or anything the eigen path rejects.
 HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9], float* alpha,
                                                   float F_out[9], float tau[9]) {
@@ -373,7 +365,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   // The float error of |dev eps| (a few ulp of |eps| <= |X|) moves y by at most dy: closer than
   // that to the threshold, the decision is left to the eigen path.
   const double mu = m.mu, K = m.bulk, beta = m.beta;
-  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;
+  const double q = ret.q;
   const double dq = 1.2247448713915890491 * 2.0 * mu * (1e-6 * (double)sqrtf(x_norm_sq) + 1e-12);
   const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
   // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or

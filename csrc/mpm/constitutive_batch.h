@@ -1,10 +1,11 @@
 // The CPU constitutive update, kBatchLanes particles at a time: the particles are laid out
-// structure-of-arrays so that GCC's loop vectoriser turns constitutive_small_strain and
-// constitutive_update_eig (csrc/common/hencky_eig.h) into vector code. ConstitutiveStream (at
-// the end) runs the first and sends what it rejects to the second; particles the eigen path
-// does not handle (inverted or nearly singular F, non-finite input, unknown model) are redone
-// one by one with the SVD path, constitutive_update (csrc/common/constitutive.h). Each
-// particle's result depends only on its own inputs, never on the other lanes of its batch.
+// structure-of-arrays so that GCC's loop vectoriser turns constitutive_small_strain and the eigen
+// path, constitutive_stress_eig + projected_deformation (csrc/common/hencky_eig.h), into vector
+// code. ConstitutiveStream (at the end) runs the first and sends what it rejects to the second;
+// particles the eigen path does not handle (inverted or nearly singular F, non-finite input,
+// unknown model) are redone one by one with the SVD path, constitutive_update
+// (csrc/common/constitutive.h). Each particle's result depends only on its own inputs, never on
+// the other lanes of its batch.
 #pragma once
 #include <cstdint>
 #if defined(__SSE__)
@@ -96,7 +97,7 @@ struct ConstitutiveBatch {
                        rows[kMatM * kBatchLanes + l]};
   }
 
-  // constitutive_update_eig on every lane; arrays are [component][lane]. Two vectorised loops:
+  // The eigen path (constitutive_stress_eig, then projected_deformation) on every lane; arrays are [component][lane]. Two vectorised loops:
   // the stress half on every lane, then F_E = projected_deformation only if some lane was
   // projected (most batches stay inside the yield surface: F_E = F_trial, no exp needed).
   static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
