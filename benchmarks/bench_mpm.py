@@ -23,6 +23,7 @@ import torch
 from fracture_gs._backend import compiled_module
 from fracture_gs.mpm.lattice import LatticeBody, lattice_sphere, particle_set
 from fracture_gs.mpm.materials import NACCMaterial
+from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain
 
@@ -37,7 +38,10 @@ def two_spheres(n_total: int, grid: int, device: torch.device, backend: str) -> 
               LatticeBody(lattice_sphere((0.5 + radius + spacing / 2, 0.5, 0.5), radius, spacing), (-3, 0, 0), 0,
                           spacing)]
     material = NACCMaterial(E=2e5, nu=0.3, density=1e3, alpha0=-0.01, beta=0.3, xi=1.0, M=2.36)
-    return CollisionMPM(particle_set(bodies, [material.density]), [material], domain,
+    particles = particle_set(bodies, [material.density])
+    # The order simulate.py runs with (build_scene): each grid block's particles together.
+    particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
+    return CollisionMPM(particles, [material], domain,
                         contact=ContactSettings(mode="collision"), boundaries=[BoxBoundary("slip")],
                         gravity=(0, 0, -9.8), cfl=0.3, backend=backend, device=device)
 

@@ -133,7 +133,8 @@ def test_model_object_transform_parts_and_masses(tmp_path: Path) -> None:
     part = (x[:, 0] > 0).astype(np.int32)
     model_dir = tmp_path / "rock"
     model_dir.mkdir()
-    write_particles_ply(model_dir / "particles.ply", x, np.full(200, 2e-6), part)
+    write_particles_ply(model_dir / "particles.ply", x, np.full(200, 2e-6), part,
+                        gaussian_index=np.arange(200))
     config = parse_scene(scene_with([
         {"name": "rock", "model": str(model_dir),
          "transform": {"scale": 2.0, "rotate_deg": [0, 0, 90], "translate": [0.5, 0.5, 0.5]},
@@ -148,9 +149,14 @@ def test_model_object_transform_parts_and_masses(tmp_path: Path) -> None:
     p = built.particles
     rock = (p.obj_id == 0).numpy()
     assert rock.sum() == 200 and (~rock).sum() > 0
+    # build_scene reorders particles (spatial_order); every column travels with its row, so the
+    # file's row of each particle is its gaussian_index here.
+    row = p.gaussian_index[rock].numpy()
+    assert sorted(row) == list(range(200))
     expected_x = 2.0 * (x.astype(np.float32).astype(np.float64) @
                         rotation_matrix_xyz((0, 0, 90)).T) + 0.5
-    assert np.allclose(p.x[rock].numpy(), expected_x, atol=1e-6)
+    assert np.allclose(p.x[rock].numpy(), expected_x[row], atol=1e-6)
+    assert (p.part_id[rock].numpy() == part[row]).all()
     assert np.allclose(p.rest_volume[rock].numpy(), 2e-6 * 8)        # scale³
     assert np.allclose(p.v[rock].numpy(), [0, 0, -1])
     # one material row per (object, part), in part order per object

@@ -281,21 +281,31 @@ HOST_DEVICE FGS_FORCE_INLINE void projected_deformation(const EigProjection& pro
 }
 
 // ---------------------------------------------------------------------------------------------
-// Small strains: no eigen-decomposition at all.
+// Moderate deviatoric strains: no eigen-decomposition at all.
 //
-// While |b - I| is small the Hencky strain is a power series, eps = 1/2 log(I + X) with
-// X = b - I, log(I + X) = sum_k (-1)^(k+1) X^k / k, and the return map only needs invariants:
-// e = ln det F, |dev eps|, then tau = 2 mu g dev eps + K e_out I and
-// F_E = exp(Z) F with Z = eps_out - eps = (g - 1) dev eps + (e_out - e) / 3 I (the left stretch
-// V = exp(eps) of F = V R is replaced by exp(eps_out); exp(Z) is a series too).
-// With |X|_F <= kSmallStrainNorm (stretches within about 5 % of 1) the log series to X^7 is exact
-// to |X|^8 / 8, ~1e-8 relative, and with |Z|_F <= kSmallStrainNorm the exp series to Z^6 to
-// ~2e-11; both run in float (the products are well scaled), e in double from det F as on the
-// eigen path, the return map's algebra in double (nacc_invariant_return). States within the
-// float error of |dev eps| of the yield surface are left to the eigen path, so both paths decide
-// alike.
+// b = J^(2/3) b_iso with J = det F and det b_iso = 1, so eps = e/3 I + 1/2 log(b_iso), e = ln J:
+// the volumetric part is a scalar (e in double, from det F as on the eigen path) and only the
+// isochoric part needs a matrix function. With X = b_iso - I = J^(-2/3) (b - I) + (J^(-2/3) - 1) I
+// (formed in double from b - I, so a large volume change costs no accuracy),
+//   1/2 log(I + X) = atanh(Y),  Y = X (2I + X)^-1,  atanh(Y) = Y + Y^3/3 + Y^5/5 + ...
+// (per eigenvalue lambda of b_iso: 1/2 ln lambda = atanh((lambda - 1) / (lambda + 1))). The return
+// map only needs invariants, e and |dev eps| (dev eps = atanh(Y) made traceless), then
+// tau = 2 mu g dev eps + K e_out I and F_E = exp(Z) F with
+// Z = eps_out - eps = (e_out - e) / 3 I + (g - 1) dev eps: the left stretch V = exp(eps) of
+// F = V R is replaced by exp(eps_out). exp(Z) = exp((e_out - e) / 3) exp(W), W = (g - 1) dev eps,
+// the scalar in double, exp(W) a Taylor series.
+// With |Y|_F <= kSmallStrainNorm = 0.25 (isochoric principal stretches in [0.77, 1.29], any volume
+// change) the atanh series to Y^11 is exact to |Y|^12 / 13, < 5e-9 relative, and with
+// |W|_F <= kSmallStrainNorm the exp series to W^6 to |W|^7 / 7! < 1.3e-8; both run in float (the
+// products are well scaled), the return map's algebra in double (nacc_invariant_return). States
+// within the float error of |dev eps| of the yield surface are left to the eigen path, so both
+// paths decide alike.
 
-constexpr float kSmallStrainNorm = 0.1f;  // |b - I|_F and |eps_out - eps|_F bound of the series path
+constexpr float kSmallStrainNorm = 0.25f;  // |Y|_F and |W|_F bound of the series path
+// det F must exceed this (e^-19) on the series path: then b's eigenvalues exceed
+// 0.6 J^(2/3) > kEigMinStretchSq (|Y| <= 0.25 keeps b_iso's above 0.6), so the eigen path would
+// accept the state too.
+constexpr double kSmallStrainMinDet = 5.6e-9;
 
 namespace hencky_eig_detail {
 
@@ -317,56 +327,78 @@ HOST_DEVICE FGS_FORCE_INLINE void horner_step(const float X[6], float c, float P
   for (int i = 0; i < 6; ++i) P[i] = R[i] + (i < 3 ? c : 0.f);
 }
 
+// P = c[0] I + X (c[1] I + X (c[2] I + ... + X c[N-1] I)), by Horner.
+template <int N>
+HOST_DEVICE FGS_FORCE_INLINE void sym3_polynomial(const float X[6], const float (&c)[N], float P[6]) {
+  P[0] = P[1] = P[2] = c[N - 1];
+  P[3] = P[4] = P[5] = 0.f;
+#pragma GCC unroll 16
+  for (int k = N - 2; k >= 0; --k) horner_step(X, c[k], P);
+}
+
 HOST_DEVICE FGS_FORCE_INLINE float sym3_norm_sq(const float X[6]) {
   return X[0] * X[0] + X[1] * X[1] + X[2] * X[2] + 2.f * (X[3] * X[3] + X[4] * X[4] + X[5] * X[5]);
 }
 
 }  // namespace hencky_eig_detail
 
-// The constitutive update at small strain. F: F_trial in; F_out: F_E; alpha in/out; tau:
-// Kirchhoff stress of F_E. Returns false (outputs meaningless) where the caller must run
-// the eigen path (constitutive_stress_eig) instead: strains beyond kSmallStrainNorm, a state within float error
-// of the yield surface, or anything the eigen path rejects.
+// The constitutive update at small to moderate deviatoric strain (the series path). F: F_trial in;
+// F_out: F_E; alpha in/out;
+// tau: Kirchhoff stress of F_E. Returns false (outputs meaningless) where the caller must run
+// the eigen path (constitutive_stress_eig) instead: isochoric strains beyond kSmallStrainNorm, a
+// state within float error of the yield surface, or anything the eigen path rejects.
 HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9], float* alpha,
                                                   float F_out[9], float tau[9]) {
-  using hencky_eig_detail::horner_step;
   using hencky_eig_detail::sym3_norm_sq;
+  using hencky_eig_detail::sym3_polynomial;
   using hencky_eig_detail::sym3_product;
   double Fd[9], b[6];
   const double det = cauchy_green_minus_identity(F, Fd, b);
+  const double e = fast_math::log1p_d(det > 0.0 ? det - 1.0 : 0.0);
+  // X = b_iso - I = s (b - I) + (s - 1) I with s = J^(-2/3).
+  const double s = fast_math::exp_d(e * (-2.0 / 3.0));
   float X[6];
 #pragma GCC unroll 6
-  for (int i = 0; i < 6; ++i) X[i] = (float)b[i];
-  const float x_norm_sq = sym3_norm_sq(X);
+  for (int i = 0; i < 6; ++i) X[i] = (float)(s * b[i] + (i < 3 ? s - 1.0 : 0.0));
   const float a = *alpha;
   float probe = a * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
 
-  // log(I + X) = X (I - X/2 + X^2/3 - X^3/4 + X^4/5 - X^5/6 + X^6/7), by Horner.
-  float P[6] = {1.f / 7.f, 1.f / 7.f, 1.f / 7.f, 0.f, 0.f, 0.f};
-  horner_step(X, -1.f / 6.f, P);
-  horner_step(X, 1.f / 5.f, P);
-  horner_step(X, -1.f / 4.f, P);
-  horner_step(X, 1.f / 3.f, P);
-  horner_step(X, -1.f / 2.f, P);
-  horner_step(X, 1.f, P);
-  float L[6];  // log(I + X) = 2 eps
-  sym3_product(X, P, L);
-  const double e = fast_math::log1p_d(det > 0.0 ? det - 1.0 : 0.0);
-  double dev[6];  // dev eps = L / 2 - e / 3 I
+  // eps_iso = 1/2 log(I + X) = atanh(Y) with Y = X (2I + X)^-1 (a function of X, so they
+  // commute and Y is symmetric): atanh(Y) = Y (I + Y^2/3 + Y^4/5 + ... + Y^10/11), by Horner.
+  float Y[6];
+  {
+    const float m0 = X[0] + 2.f, m1 = X[1] + 2.f, m2 = X[2] + 2.f, m3 = X[3], m4 = X[4], m5 = X[5];
+    float inverse[6] = {m1 * m2 - m5 * m5, m0 * m2 - m4 * m4, m0 * m1 - m3 * m3,
+                        m4 * m5 - m3 * m2, m3 * m5 - m4 * m1, m3 * m4 - m0 * m5};  // adjugate
+    const float inv_det = 1.f / (m0 * inverse[0] + m3 * inverse[3] + m4 * inverse[4]);
 #pragma GCC unroll 6
-  for (int i = 0; i < 6; ++i) dev[i] = 0.5 * (double)L[i] - (i < 3 ? e * (1.0 / 3.0) : 0.0);
+    for (int i = 0; i < 6; ++i) inverse[i] *= inv_det;
+    sym3_product(X, inverse, Y);
+  }
+  const float y_norm_sq = sym3_norm_sq(Y);
+  float Y2[6];
+  sym3_product(Y, Y, Y2);
+  const float atanh_coefficients[6] = {1.f, 1.f / 3.f, 1.f / 5.f, 1.f / 7.f, 1.f / 9.f, 1.f / 11.f};
+  float P[6];
+  sym3_polynomial(Y2, atanh_coefficients, P);
+  float eps_iso[6];  // traceless up to float rounding; made exactly so below
+  sym3_product(Y, P, eps_iso);
+  const double trace_third = ((double)eps_iso[0] + (double)eps_iso[1] + (double)eps_iso[2]) * (1.0 / 3.0);
+  double dev[6];
+#pragma GCC unroll 6
+  for (int i = 0; i < 6; ++i) dev[i] = (double)eps_iso[i] - (i < 3 ? trace_third : 0.0);
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2] +
                                2.0 * (dev[3] * dev[3] + dev[4] * dev[4] + dev[5] * dev[5]));
 
   const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc;
   const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
-  // The float error of |dev eps| (a few ulp of |eps| <= |X|) moves y by at most dy: closer than
-  // that to the threshold, the decision is left to the eigen path.
+  // The float error of |dev eps| (a few ulp of |eps_iso| <= 1.03 |Y|) moves y by at most dy:
+  // closer than that to the threshold, the decision is left to the eigen path.
   const double mu = m.mu, K = m.bulk, beta = m.beta;
   const double q = ret.q;
-  const double dq = 1.2247448713915890491 * 2.0 * mu * (1e-6 * (double)sqrtf(x_norm_sq) + 1e-12);
+  const double dq = 1.2247448713915890491 * 2.0 * mu * (2e-6 * (double)sqrtf(y_norm_sq) + 1e-12);
   const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
   // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or
   // the model is elastic (a double, not a bool: GCC 12 cannot vectorise that mix of conditions).
@@ -374,24 +406,21 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
                                            (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
   *alpha = (float)ret.alpha;
 
-  // Z = eps_out - eps and exp(Z) = I + Z P, P = sum_k Z^(k-1) / k! for k = 1..6, by Horner.
-  const double shift = (ret.e_out - e) * (1.0 / 3.0);
-  float Z[6];
+  // exp(W) = I + W P, P = sum_k W^(k-1) / k! for k = 1..6, by Horner; W = (g - 1) dev eps.
+  float W[6];
 #pragma GCC unroll 6
-  for (int i = 0; i < 6; ++i) Z[i] = (float)((ret.g - 1.0) * dev[i] + (i < 3 ? shift : 0.0));
-  const float z_norm_sq = sym3_norm_sq(Z);
-  float E[6] = {1.f / 720.f, 1.f / 720.f, 1.f / 720.f, 0.f, 0.f, 0.f};
-  horner_step(Z, 1.f / 120.f, E);
-  horner_step(Z, 1.f / 24.f, E);
-  horner_step(Z, 1.f / 6.f, E);
-  horner_step(Z, 1.f / 2.f, E);
-  horner_step(Z, 1.f, E);
-  float expZ[6];
-  sym3_product(Z, E, expZ);
-  expZ[0] += 1.f;
-  expZ[1] += 1.f;
-  expZ[2] += 1.f;
-  const float S[9] = {expZ[0], expZ[3], expZ[4], expZ[3], expZ[1], expZ[5], expZ[4], expZ[5], expZ[2]};
+  for (int i = 0; i < 6; ++i) W[i] = (float)((ret.g - 1.0) * dev[i]);
+  const float w_norm_sq = sym3_norm_sq(W);
+  const float exp_coefficients[6] = {1.f, 1.f / 2.f, 1.f / 6.f, 1.f / 24.f, 1.f / 120.f, 1.f / 720.f};
+  float E[6];
+  sym3_polynomial(W, exp_coefficients, E);
+  float expW[6];
+  sym3_product(W, E, expW);
+  // exp(Z) = exp((e_out - e) / 3) exp(W).
+  const float volume_scale = (float)fast_math::exp_d((ret.e_out - e) * (1.0 / 3.0));
+  float S[9] = {expW[0] + 1.f, expW[3], expW[4], expW[3], expW[1] + 1.f, expW[5], expW[4], expW[5], expW[2] + 1.f};
+#pragma GCC unroll 9
+  for (int i = 0; i < 9; ++i) S[i] *= volume_scale;
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i)
 #pragma GCC unroll 9
@@ -408,8 +437,9 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   tau[0] = t00; tau[1] = t01; tau[2] = t02;
   tau[3] = t01; tau[4] = t11; tau[5] = t12;
   tau[6] = t02; tau[7] = t12; tau[8] = t22;
-  return (probe == 0.f) & (x_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
-         (z_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > 0.0) & (is_elastic | is_nacc) & (decided > 0.0);
+  return (probe == 0.f) & (y_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
+         (w_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > kSmallStrainMinDet) &
+         (is_elastic | is_nacc) & (decided > 0.0);
 }
 
 }  // namespace fgs

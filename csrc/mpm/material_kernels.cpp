@@ -25,7 +25,7 @@ int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* al
       }
       alpha_out[i] = alpha;
     };
-#pragma omp for schedule(static) nowait
+#pragma omp for schedule(dynamic, 512) nowait  // per-particle results: any schedule gives the same bits
     for (int64_t i = 0; i < n; ++i) {
       const int32_t id = material_id[i];
       if (id >= 0 && id < n_materials) {

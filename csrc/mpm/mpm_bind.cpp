@@ -107,7 +107,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   Tensor color_start = bins[4].to(torch::kCPU);
   BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
                 bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                (int)bins[5].numel()};
+                (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
   if (x.device().is_cpu()) {
     p2g_cpu(view, p, geo, (float)dt, grid);
     return;

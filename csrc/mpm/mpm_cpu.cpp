@@ -3,6 +3,8 @@
 // running at the same time never write the same grid node: no atomics, and the result does not
 // depend on the number of threads.
 #include <algorithm>
+#include <atomic>
+#include <omp.h>
 #include <cstring>
 #include <vector>
 
@@ -19,70 +21,156 @@ inline int block_color(int block, const GridShape& s) {
 
 }  // namespace
 
+namespace {
+
+// Range [begin, end) of part `t` of `parts` near-equal parts of [0, n).
+inline void split_range(long long n, int parts, int t, long long* begin, long long* end) {
+  *begin = n * t / parts;
+  *end = n * (t + 1) / parts;
+}
+
+// Writes, in ascending order, every i in [0, n) with keep(i) to out (resized here): each thread
+// counts its part, a prefix over the parts places them. The result does not depend on the
+// number of threads.
+template <class Keep>
+void parallel_select(long long n, std::vector<int32_t>* out, const Keep& keep) {
+  const int parts = omp_get_max_threads();
+  std::vector<long long> part_start(parts + 1, 0);
+#pragma omp parallel num_threads(parts)
+  {
+    const int t = omp_get_thread_num(), team = omp_get_num_threads();
+    long long begin, end, kept = 0;
+    split_range(n, team, t, &begin, &end);
+    for (long long i = begin; i < end; ++i) kept += keep(i) ? 1 : 0;
+    part_start[t + 1] = kept;
+#pragma omp barrier
+#pragma omp single
+    {
+      for (int u = team; u < parts; ++u) part_start[u + 1] = 0;
+      for (int u = 0; u < parts; ++u) part_start[u + 1] += part_start[u];
+      out->resize(part_start[parts]);
+    }
+    long long cursor = part_start[t];
+    for (long long i = begin; i < end; ++i)
+      if (keep(i)) (*out)[cursor++] = (int32_t)i;
+  }
+}
+
+}  // namespace
+
+// Counting sort of the particles by (grid, block), in parallel and stable: thread t counts
+// and later scatters its own range of particles, and a prefix over (key, thread) gives each
+// thread its slots, so `order` is the same as a serial stable sort for any number of threads.
 long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
                             const MPMGeometry& geo, ParticleBins* bins) {
   const GridShape& s = geo.shape;
   const int n_blocks = s.blocks();
   const long long n_keys = (long long)geo.n_grids * n_blocks;
   const int limit[3] = {s.bx * kBlock - 3, s.by * kBlock - 3, s.bz * kBlock - 3};
+  const int parts = omp_get_max_threads();
   std::vector<int32_t> key(n);
   std::vector<uint8_t> reach(n);  // bit d set: the stencil reaches the next block along axis d
+  // slot[t * n_keys + k]: particles of key k in thread t's range, then the first slot they take.
+  std::vector<int32_t> slot((size_t)parts * n_keys, 0);
+  std::vector<int32_t> key_start(n_keys + 1, 0);
+  std::vector<long long> chunk_total(parts + 1, 0);
   long long bad = -1;
-#pragma omp parallel for schedule(static) reduction(max : bad)
-  for (long long p = 0; p < n; ++p) {
-    int base[3];
-    bool ok = grid_id[p] >= 0 && grid_id[p] < geo.n_grids;
-    uint8_t r = 0;
-    for (int d = 0; d < 3; ++d) {
-      float X = (x[3 * p + d] - geo.lower[d]) * geo.inv_dx;
-      ok = ok && X >= 0.5f && X < (float)limit[d] + 0.5f;  // also false for NaN
-      base[d] = ok ? (int)floorf(X - 0.5f) : 0;
-      if ((base[d] & (kBlock - 1)) >= kBlock - 2) r |= (uint8_t)(1 << d);
+#pragma omp parallel num_threads(parts) reduction(max : bad)
+  {
+    const int t = omp_get_thread_num(), team = omp_get_num_threads();
+    long long begin, end;
+    split_range(n, team, t, &begin, &end);
+    int32_t* count = slot.data() + (size_t)t * n_keys;
+    for (long long p = begin; p < end; ++p) {
+      int base[3];
+      bool ok = grid_id[p] >= 0 && grid_id[p] < geo.n_grids;
+      uint8_t r = 0;
+      for (int d = 0; d < 3; ++d) {
+        float X = (x[3 * p + d] - geo.lower[d]) * geo.inv_dx;
+        ok = ok && X >= 0.5f && X < (float)limit[d] + 0.5f;  // also false for NaN
+        base[d] = ok ? (int)floorf(X - 0.5f) : 0;
+        if ((base[d] & (kBlock - 1)) >= kBlock - 2) r |= (uint8_t)(1 << d);
+      }
+      if (!ok) {
+        bad = std::max(bad, p);
+        key[p] = 0;
+        continue;
+      }
+      const int block = ((base[0] >> kBlockBits) * s.by + (base[1] >> kBlockBits)) * s.bz + (base[2] >> kBlockBits);
+      key[p] = grid_id[p] * n_blocks + block;
+      reach[p] = r;
+      ++count[key[p]];
     }
-    if (!ok) {
-      bad = std::max(bad, p);
-      key[p] = 0;
-      continue;
+#pragma omp barrier
+    // Totals per key over the threads, then the prefix over keys (by key chunks).
+    long long k_begin, k_end;
+    split_range(n_keys, team, t, &k_begin, &k_end);
+    long long chunk_sum = 0;
+    for (long long k = k_begin; k < k_end; ++k)
+      for (int u = 0; u < team; ++u) chunk_sum += slot[(size_t)u * n_keys + k];
+    chunk_total[t + 1] = chunk_sum;
+#pragma omp barrier
+#pragma omp single
+    for (int u = 0; u < team; ++u) chunk_total[u + 1] += chunk_total[u];
+    long long running = chunk_total[t];
+    for (long long k = k_begin; k < k_end; ++k) {
+      key_start[k] = (int32_t)running;
+      for (int u = 0; u < team; ++u) {
+        const int32_t c = slot[(size_t)u * n_keys + k];
+        slot[(size_t)u * n_keys + k] = (int32_t)running;
+        running += c;
+      }
     }
-    int block = ((base[0] >> kBlockBits) * s.by + (base[1] >> kBlockBits)) * s.bz +
-                (base[2] >> kBlockBits);
-    key[p] = grid_id[p] * n_blocks + block;
-    reach[p] = r;
+    if (t == team - 1) key_start[n_keys] = (int32_t)running;
   }
   if (bad >= 0) return bad;
-
-  // Stable counting sort of particles by key.
-  std::vector<int32_t> count(n_keys + 1, 0);
-  for (long long p = 0; p < n; ++p) ++count[key[p] + 1];
-  for (long long k = 0; k < n_keys; ++k) count[k + 1] += count[k];
   bins->order.resize(n);
+#pragma omp parallel num_threads(parts)
   {
-    std::vector<int32_t> cursor(count.begin(), count.end() - 1);
-    for (long long p = 0; p < n; ++p) bins->order[cursor[key[p]]++] = (int32_t)p;
+    const int t = omp_get_thread_num(), team = omp_get_num_threads();
+    long long begin, end;
+    split_range(n, team, t, &begin, &end);
+    int32_t* cursor = slot.data() + (size_t)t * n_keys;
+    for (long long p = begin; p < end; ++p) bins->order[cursor[key[p]]++] = (int32_t)p;
   }
-  // Non-empty cells, the blocks their stencils touch, and their colours.
-  bins->cell_start.clear();
-  bins->cell_key.clear();
+
+  // Non-empty (grid, block) pairs ("cells"), and the blocks their stencils touch: the cell's
+  // block and the upper neighbours its particles reach. Several cells may mark one block, all
+  // with the same value (relaxed atomic stores: no ordering needed, the result is a set).
+  parallel_select(n_keys, &bins->cell_key, [&](long long k) { return key_start[k + 1] > key_start[k]; });
+  const int n_cells = (int)bins->cell_key.size();
+  bins->cell_start.resize(n_cells + 1);
   std::vector<uint8_t> touched_mark(n_keys, 0);
-  for (long long k = 0; k < n_keys; ++k) {
-    if (count[k + 1] == count[k]) continue;
-    bins->cell_key.push_back((int32_t)k);
-    bins->cell_start.push_back(count[k]);
+#pragma omp parallel for schedule(static)
+  for (int c = 0; c < n_cells; ++c) {
+    const int k = bins->cell_key[c];
+    bins->cell_start[c] = key_start[k];
     uint8_t r = 0;
-    for (int i = count[k]; i < count[k + 1]; ++i) r |= reach[bins->order[i]];
-    const int g = (int)(k / n_blocks), block = (int)(k % n_blocks);
+    for (int i = key_start[k]; i < key_start[k + 1]; ++i) r |= reach[bins->order[i]];
+    const int g = k / n_blocks, block = k % n_blocks;
     const int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
     for (int di = 0; di <= ((r >> 0) & 1); ++di)
       for (int dj = 0; dj <= ((r >> 1) & 1); ++dj)
         for (int dk = 0; dk <= ((r >> 2) & 1); ++dk)
-          touched_mark[(long long)g * n_blocks + ((bi + di) * s.by + bj + dj) * s.bz + bk + dk] = 1;
+          std::atomic_ref<uint8_t>(touched_mark[(long long)g * n_blocks + ((bi + di) * s.by + bj + dj) * s.bz + bk + dk])
+              .store(1, std::memory_order_relaxed);
   }
-  bins->cell_start.push_back((int32_t)n);
-  const int n_cells = (int)bins->cell_key.size();
+  bins->cell_start[n_cells] = (int32_t)n;
+  parallel_select(n_keys, &bins->touched, [&](long long k) { return touched_mark[k] != 0; });
+  bins->contact_blocks.clear();
+  if (geo.n_grids >= 2) {
+    parallel_select(n_blocks, &bins->contact_blocks, [&](long long b) {
+      int grids_here = 0;
+      for (int g = 0; g < geo.n_grids; ++g) grids_here += touched_mark[(long long)g * n_blocks + b];
+      return grids_here >= 2;
+    });
+  }
+
+  // Cells grouped by block parity colour, ascending inside each colour.
   bins->color_start.assign(9, 0);
-  std::vector<int> colors(n_cells);
+  std::vector<uint8_t> colors(n_cells);
   for (int c = 0; c < n_cells; ++c) {
-    colors[c] = block_color(bins->cell_key[c] % n_blocks, s);
+    colors[c] = (uint8_t)block_color(bins->cell_key[c] % n_blocks, s);
     ++bins->color_start[colors[c] + 1];
   }
   for (int c = 0; c < 8; ++c) bins->color_start[c + 1] += bins->color_start[c];
@@ -90,17 +178,6 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   {
     std::vector<int32_t> cursor(bins->color_start.begin(), bins->color_start.end() - 1);
     for (int c = 0; c < n_cells; ++c) bins->color_cells[cursor[colors[c]]++] = c;
-  }
-  bins->touched.clear();
-  for (long long k = 0; k < n_keys; ++k)
-    if (touched_mark[k]) bins->touched.push_back((int32_t)k);
-  bins->contact_blocks.clear();
-  if (geo.n_grids >= 2) {
-    for (int b = 0; b < n_blocks; ++b) {
-      int grids_here = 0;
-      for (int g = 0; g < geo.n_grids; ++g) grids_here += touched_mark[(long long)g * n_blocks + b];
-      if (grids_here >= 2) bins->contact_blocks.push_back(b);
-    }
   }
   return -1;
 }
@@ -115,9 +192,9 @@ constexpr int kWindowNodes = kWindow * kWindow * kWindow;
 
 namespace {
 
-// The particles of a cell lie scattered in memory (the arrays stay in the caller's order), so
-// P2G asks for the data of the particle kPrefetchAhead places later in the cell while it
-// scatters the current one.
+// The particles of a cell lie wherever the caller put them (together if it ordered them with
+// fracture_gs.mpm.ordering.spatial_order, scattered otherwise), so P2G asks for the data of the
+// particle kPrefetchAhead places later in the cell while it scatters the current one.
 constexpr int kPrefetchAhead = 6;
 
 inline void prefetch_particle(const ParticleArrays& p, int q) {
@@ -132,7 +209,9 @@ inline void prefetch_particle(const ParticleArrays& p, int q) {
 }
 
 // Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
-// the window's first node.
+// the window's first node. kWithContact: also the mass gradient (record lanes 5-7), which only
+// the contact pass reads; without it those lanes stay zero.
+template <bool kWithContact>
 void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                      const int origin[3], Record* FGS_RESTRICT window) {
   std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
@@ -161,14 +240,18 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
         const float py = ((float)b - aw[1].f) * dx;
         const float wab = aw[0].w[a] * aw[1].w[b];
         // Record of node (a, b, c) = wz_c * in_plane + wz_c pz_c * along + dwz_c * wab gradient_z.
-        const Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y +
-                                (aw[0].dw[a] * aw[1].w[b]) * gradient_x + (aw[0].w[a] * aw[1].dw[b]) * gradient_y;
+        Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
+        if constexpr (kWithContact)
+          in_plane += (aw[0].dw[a] * aw[1].w[b]) * gradient_x + (aw[0].w[a] * aw[1].dw[b]) * gradient_y;
         const Record along = wab * affine_z;
         const Record normal = wab * gradient_z;
         Record* row = window + ((lx + a) * kWindow + (ly + b)) * kWindow + lz;
         for (int c = 0; c < 3; ++c) {
           const float pz = ((float)c - aw[2].f) * dx;
-          row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along + aw[2].dw[c] * normal;
+          if constexpr (kWithContact)
+            row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along + aw[2].dw[c] * normal;
+          else
+            row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along;
         }
       }
     }
@@ -176,16 +259,19 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
 }
 
 // Adds a cell's window into the grid fields of its object (blocks outside the grid are skipped:
-// no stencil reaches them, so their records are zero).
+// no stencil reaches them, so their records are zero). Volume and mass gradient go only to
+// contact blocks (contact[block] != 0; none if contact is nullptr).
 void p2g_flush_window(const Record* FGS_RESTRICT window, const int block_ijk[3], const GridShape& s,
-                      float* FGS_RESTRICT mass, float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient,
-                      float* FGS_RESTRICT volume) {
+                      const uint8_t* contact, float* FGS_RESTRICT mass, float* FGS_RESTRICT momentum,
+                      float* FGS_RESTRICT gradient, float* FGS_RESTRICT volume) {
   for (int di = 0; di < 2; ++di)
     for (int dj = 0; dj < 2; ++dj)
       for (int dk = 0; dk < 2; ++dk) {
         const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
         if (bi >= s.bx || bj >= s.by || bk >= s.bz) continue;
-        const long long first = (long long)((bi * s.by + bj) * s.bz + bk) * kBlockNodes;
+        const int block = (bi * s.by + bj) * s.bz + bk;
+        const bool with_contact = contact != nullptr && contact[block] != 0;
+        const long long first = (long long)block * kBlockNodes;
         for (int li = 0; li < kBlock; ++li)
           for (int lj = 0; lj < kBlock; ++lj) {
             const Record* src = window + ((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock;
@@ -195,8 +281,8 @@ void p2g_flush_window(const Record* FGS_RESTRICT window, const int block_ijk[3],
               const long long idx = dst + lk;
               mass[idx] += r[0];
               for (int d = 0; d < 3; ++d) momentum[3 * idx + d] += r[1 + d];
-              if (volume) volume[idx] += r[4];
-              if (gradient)
+              if (with_contact && volume) volume[idx] += r[4];
+              if (with_contact && gradient)
                 for (int d = 0; d < 3; ++d) gradient[3 * idx + d] += r[5 + d];
             }
           }
@@ -220,6 +306,15 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
     if (grid.mass_gradient) std::memset(grid.mass_gradient + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
     if (grid.volume) std::memset(grid.volume + first, 0, sizeof(float) * kBlockNodes);
   }
+  // Contact blocks (block ids touched by two grids): only there does P2G add the nodal volume
+  // and the mass gradient, the contact pass's inputs; a cell computes the gradient only if its
+  // window (2x2x2 blocks) contains one.
+  std::vector<uint8_t> contact_flag;
+  if ((grid.mass_gradient || grid.volume) && bins.n_contact > 0) {
+    contact_flag.assign(n_blocks, 0);
+    for (int i = 0; i < bins.n_contact; ++i) contact_flag[bins.contact_blocks[i]] = 1;
+  }
+  const uint8_t* contact = contact_flag.empty() ? nullptr : contact_flag.data();
 #pragma omp parallel
   {
     std::vector<Record> window(kWindowNodes);  // per thread
@@ -231,9 +326,20 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
         const int grid_index = bins.cell_key[cell] / n_blocks, block = bins.cell_key[cell] % n_blocks;
         const int block_ijk[3] = {block / (s.by * s.bz), (block / s.bz) % s.by, block % s.bz};
         const int origin[3] = {block_ijk[0] * kBlock, block_ijk[1] * kBlock, block_ijk[2] * kBlock};
-        p2g_cell_window(bins, cell, p, geo, dt, origin, window.data());
+        bool near_contact = false;
+        if (contact)
+          for (int di = 0; di < 2; ++di)
+            for (int dj = 0; dj < 2; ++dj)
+              for (int dk = 0; dk < 2; ++dk) {
+                const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
+                if (bi < s.bx && bj < s.by && bk < s.bz) near_contact |= contact[(bi * s.by + bj) * s.bz + bk] != 0;
+              }
+        if (near_contact)
+          p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data());
+        else
+          p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data());
         const long long grid_offset = (long long)grid_index * nodes;
-        p2g_flush_window(window.data(), block_ijk, s, grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
+        p2g_flush_window(window.data(), block_ijk, s, contact, grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
                          grid.mass_gradient ? grid.mass_gradient + 3 * grid_offset : nullptr,
                          grid.volume ? grid.volume + grid_offset : nullptr);
       }
@@ -358,7 +464,9 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       g2p_store_material(q, in, out, F_E, alpha, tau);
       if (!finite_sum9(F_E)) first_bad = q < first_bad ? q : first_bad;
     };
-#pragma omp for schedule(static) nowait
+    // Dynamic chunks: the constitutive cost varies between particles (eigen-path lanes); a
+    // particle's result depends only on its own inputs, so the schedule cannot change any bit.
+#pragma omp for schedule(dynamic, 512) nowait
     for (long long q = 0; q < n; ++q) {
       float F_trial[9];
       clamped += g2p_gather_cpu(q, in, geo, dt, grid_velocity, out, F_trial) ? 1 : 0;

@@ -33,6 +33,8 @@ struct BinsView {
   const int32_t* color_start;
   const int32_t* touched;
   int n_touched;
+  const int32_t* contact_blocks;  // host pointer on the CPU path (P2G reads it there only)
+  int n_contact;
 };
 
 struct ParticleArrays {  // inputs of P2G, N rows each

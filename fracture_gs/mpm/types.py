@@ -94,6 +94,10 @@ class ParticleSet:
     def to(self, device: torch.device) -> "ParticleSet":
         return ParticleSet(**{f.name: getattr(self, f.name).to(device) for f in fields(self)})
 
+    def take(self, index: torch.Tensor) -> "ParticleSet":
+        """The particles at ``index`` (a permutation reorders the set), every column alike."""
+        return ParticleSet(**{f.name: getattr(self, f.name)[index].contiguous() for f in fields(self)})
+
 
 @dataclass
 class SimState:
