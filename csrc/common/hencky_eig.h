@@ -355,8 +355,10 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   double Fd[9], b[6];
   const double det = cauchy_green_minus_identity(F, Fd, b);
   const double e = fast_math::log1p_d(det > 0.0 ? det - 1.0 : 0.0);
-  // X = b_iso - I = s (b - I) + (s - 1) I with s = J^(-2/3).
-  const double s = fast_math::exp_d(e * (-2.0 / 3.0));
+  // X = b_iso - I = s (b - I) + (s - 1) I with s = J^(-2/3). s in float is enough: an error
+  // d s changes X by (d s / s)(I + X), whose isotropic part the traceless projection below
+  // removes, leaving a relative error of float rounding on X.
+  const double s = (double)fast_math::exp_f((float)(e * (-2.0 / 3.0)));
   float X[6];
 #pragma GCC unroll 6
   for (int i = 0; i < 6; ++i) X[i] = (float)(s * b[i] + (i < 3 ? s - 1.0 : 0.0));
@@ -417,7 +419,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   float expW[6];
   sym3_product(W, E, expW);
   // exp(Z) = exp((e_out - e) / 3) exp(W).
-  const float volume_scale = (float)fast_math::exp_d((ret.e_out - e) * (1.0 / 3.0));
+  const float volume_scale = fast_math::exp_f((float)((ret.e_out - e) * (1.0 / 3.0)));
   float S[9] = {expW[0] + 1.f, expW[3], expW[4], expW[3], expW[1] + 1.f, expW[5], expW[4], expW[5], expW[2] + 1.f};
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) S[i] *= volume_scale;

@@ -73,7 +73,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   // slot[t * n_keys + k]: particles of key k in thread t's range, then the first slot they take.
   std::vector<int32_t> slot((size_t)parts * n_keys, 0);
   std::vector<int32_t> key_start(n_keys + 1, 0);
-  std::vector<long long> chunk_total(parts + 1, 0);
+  std::vector<long long> chunk_total(parts + 1, 0), chunk_cells(parts + 1, 0);
   long long bad = -1;
 #pragma omp parallel num_threads(parts) reduction(max : bad)
   {
@@ -99,26 +99,53 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
       const int block = ((base[0] >> kBlockBits) * s.by + (base[1] >> kBlockBits)) * s.bz + (base[2] >> kBlockBits);
       key[p] = grid_id[p] * n_blocks + block;
       reach[p] = r;
-      ++count[key[p]];
+    }
+    // Counted run by run: neighbouring particles mostly share a key (spatially ordered input),
+    // and a counter kept in a register avoids a load-store chain through count[].
+    for (long long p = begin; p < end;) {
+      const int32_t k = key[p];
+      long long run_end = p + 1;
+      while (run_end < end && key[run_end] == k) ++run_end;
+      count[k] += (int32_t)(run_end - p);
+      p = run_end;
     }
 #pragma omp barrier
     // Totals per key over the threads, then the prefix over keys (by key chunks).
     long long k_begin, k_end;
     split_range(n_keys, team, t, &k_begin, &k_end);
-    long long chunk_sum = 0;
-    for (long long k = k_begin; k < k_end; ++k)
-      for (int u = 0; u < team; ++u) chunk_sum += slot[(size_t)u * n_keys + k];
+    long long chunk_sum = 0, chunk_nonempty = 0;
+    for (long long k = k_begin; k < k_end; ++k) {
+      long long key_count = 0;
+      for (int u = 0; u < team; ++u) key_count += slot[(size_t)u * n_keys + k];
+      chunk_sum += key_count;
+      chunk_nonempty += key_count > 0 ? 1 : 0;
+    }
     chunk_total[t + 1] = chunk_sum;
+    chunk_cells[t + 1] = chunk_nonempty;
 #pragma omp barrier
 #pragma omp single
-    for (int u = 0; u < team; ++u) chunk_total[u + 1] += chunk_total[u];
-    long long running = chunk_total[t];
+    {
+      for (int u = 0; u < team; ++u) {
+        chunk_total[u + 1] += chunk_total[u];
+        chunk_cells[u + 1] += chunk_cells[u];
+      }
+      bins->cell_key.resize(chunk_cells[team]);
+      bins->cell_start.resize(chunk_cells[team] + 1);
+    }
+    // Slots, and the non-empty keys ("cells") with their first slot, in key order.
+    long long running = chunk_total[t], cell = chunk_cells[t];
     for (long long k = k_begin; k < k_end; ++k) {
       key_start[k] = (int32_t)running;
+      const long long first = running;
       for (int u = 0; u < team; ++u) {
         const int32_t c = slot[(size_t)u * n_keys + k];
         slot[(size_t)u * n_keys + k] = (int32_t)running;
         running += c;
+      }
+      if (running > first) {
+        bins->cell_key[cell] = (int32_t)k;
+        bins->cell_start[cell] = (int32_t)first;
+        ++cell;
       }
     }
     if (t == team - 1) key_start[n_keys] = (int32_t)running;
@@ -131,20 +158,25 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
     long long begin, end;
     split_range(n, team, t, &begin, &end);
     int32_t* cursor = slot.data() + (size_t)t * n_keys;
-    for (long long p = begin; p < end; ++p) bins->order[cursor[key[p]]++] = (int32_t)p;
+    int32_t* order = bins->order.data();
+    for (long long p = begin; p < end;) {  // run by run, as the counting
+      const int32_t k = key[p];
+      int32_t next = cursor[k];
+      long long q = p;
+      for (; q < end && key[q] == k; ++q) order[next++] = (int32_t)q;
+      cursor[k] = next;
+      p = q;
+    }
   }
 
-  // Non-empty (grid, block) pairs ("cells"), and the blocks their stencils touch: the cell's
-  // block and the upper neighbours its particles reach. Several cells may mark one block, all
-  // with the same value (relaxed atomic stores: no ordering needed, the result is a set).
-  parallel_select(n_keys, &bins->cell_key, [&](long long k) { return key_start[k + 1] > key_start[k]; });
+  // The blocks the cells' stencils touch: the cell's block and the upper neighbours its
+  // particles reach. Several cells may mark one block, all with the same value (relaxed atomic
+  // stores: no ordering needed, the result is a set).
   const int n_cells = (int)bins->cell_key.size();
-  bins->cell_start.resize(n_cells + 1);
   std::vector<uint8_t> touched_mark(n_keys, 0);
 #pragma omp parallel for schedule(static)
   for (int c = 0; c < n_cells; ++c) {
     const int k = bins->cell_key[c];
-    bins->cell_start[c] = key_start[k];
     uint8_t r = 0;
     for (int i = key_start[k]; i < key_start[k + 1]; ++i) r |= reach[bins->order[i]];
     const int g = k / n_blocks, block = k % n_blocks;
