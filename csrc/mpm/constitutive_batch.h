@@ -193,9 +193,10 @@ struct ConstitutiveBatch {
 };
 
 // Runs a stream of particles through the constitutive update, two tiers deep: every particle
-// first takes the small-strain path (constitutive_small_strain, no eigen-decomposition), kBatchLanes
-// at a time; those it rejects (strained beyond ~5 %, on or near the yield surface, inverted, ...)
-// are queued and run kBatchLanes at a time through the full update (ConstitutiveBatch::run).
+// first takes the series path (constitutive_small_strain, no eigen-decomposition), kBatchLanes
+// at a time; those it rejects (isochoric strain beyond the series range, near the yield surface,
+// inverted, ...) are queued and run kBatchLanes at a time through the full update
+// (ConstitutiveBatch::run).
 // Every lane computes only from its own inputs, so a particle's result does not depend on which
 // particles share its batches (and so not on the number of threads).
 //

@@ -51,8 +51,8 @@ struct GridArrays {  // n_grids * nodes rows each
   float* mass;
   float* momentum;       // (.., 3)
   float* velocity;       // (.., 3)
-  float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed
-  float* volume;         // (..) nodal volume sum w V0, or nullptr (only needed for contact)
+  float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed (CPU P2G: contact blocks only)
+  float* volume;         // (..) nodal volume sum w V0, or nullptr (only for contact; CPU P2G: contact blocks only)
 };
 
 // Returns -1 on success or the index of a particle whose stencil leaves the grid.

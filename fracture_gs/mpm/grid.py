@@ -78,8 +78,10 @@ class GridFields:
     mass: torch.Tensor
     momentum: torch.Tensor
     velocity: torch.Tensor
-    mass_gradient: torch.Tensor | None  # Σ m_p ∇w: contact normals (only with contact)
-    volume: torch.Tensor | None         # Σ w V0_p: contact detection (only with contact)
+    # With contact only. The contact pass reads them on contact blocks (block ids touched by two
+    # grids) only, and the compiled CPU P2G sums them there only (zero elsewhere).
+    mass_gradient: torch.Tensor | None  # Σ m_p ∇w: contact normals
+    volume: torch.Tensor | None         # Σ w V0_p: contact detection
 
     @staticmethod
     def zeros(geometry: GridGeometry, device: torch.device, with_contact: bool) -> "GridFields":

@@ -27,7 +27,11 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
         dt: float, grid: GridFields, backend: str = "auto") -> None:
-    """Particle-to-grid transfer into ``grid`` (mass, momentum, mass gradient)."""
+    """Particle-to-grid transfer into ``grid`` (mass, momentum; mass gradient and volume for contact).
+
+    The compiled CPU kernel sums mass gradient and volume on contact blocks only (the contact
+    pass reads nothing else); the torch reference and CUDA fill them everywhere.
+    """
     if use_compiled(x.device, backend):
         compiled_module().mpm_p2g(bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id,
                                   *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient,

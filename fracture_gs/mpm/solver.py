@@ -28,7 +28,13 @@ CONTACT_VOLUME_FRACTION = 0.75
 
 
 class CollisionMPM:
-    """Multi-body MLS-MPM simulator (collision mode) or the shared-grid baseline (mls mode)."""
+    """Multi-body MLS-MPM simulator (collision mode) or the shared-grid baseline (mls mode).
+
+    Particles are simulated in the order given. The compiled transfers are fastest when each grid
+    block's particles are neighbours in memory: ``build_scene`` orders them so; for a hand-made
+    set use ``particles.take(spatial_order(particles.x, particles.obj_id, domain))``
+    (:mod:`fracture_gs.mpm.ordering`).
+    """
 
     def __init__(self, particles: ParticleSet, materials: Sequence, domain: Domain, *,
                  contact: ContactSettings | None = None, boundaries: Sequence = (),
