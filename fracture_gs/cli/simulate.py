@@ -177,14 +177,14 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
     if not resume:
         output.start(config.to_dict(), built.particles)
         row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
-        output.write_frame(0, solver.state, row, solver.state_dict())
+        output.write_frame(0, solver.state_in_input_order(), row, solver.state_dict())
         return 0
     output.remove_temporaries()
     checkpoint = output.load_checkpoint()
     solver.load_state_dict(checkpoint.solver_state)
     output.write_scene(config.to_dict())
     if not output.frame_path(checkpoint.frame).exists():  # killed between checkpoint and frame
-        output.write_frame(checkpoint.frame, solver.state, checkpoint.rows[-1],
+        output.write_frame(checkpoint.frame, solver.state_in_input_order(), checkpoint.rows[-1],
                            solver.state_dict())
     return checkpoint.frame
 
@@ -254,7 +254,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
             clamped += int(stats.clamped)
             row = diagnostics_row(frame, solver.state.time, stats.steps, stats.dt_min,
                                   solver.diagnostics())
-            output.write_frame(frame, solver.state, row, solver.state_dict())
+            output.write_frame(frame, solver.state_in_input_order(), row, solver.state_dict())
             done = frame
             bar.update(1)
             bar.set_postfix(substeps_s=f"{stats.steps / max(elapsed, 1e-9):.0f}",

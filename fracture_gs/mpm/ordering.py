@@ -24,9 +24,9 @@ def spatial_order(x: torch.Tensor, obj_id: torch.Tensor, domain: Domain) -> torc
         raise ValueError(f"spatial_order: x must be (N,3) and obj_id (N,), got {tuple(x.shape)}, "
                          f"{tuple(obj_id.shape)}")
     resolution = torch.tensor(domain.resolution, device=x.device)
-    lower = torch.tensor(domain.lower, dtype=torch.float64, device=x.device)
-    # The stencil base node, as the kernels compute it: floor(x / dx - 1/2).
-    base = torch.floor((x.double() - lower) / domain.dx - 0.5).long()
+    lower = torch.tensor(domain.lower, dtype=x.dtype, device=x.device)
+    # The stencil base node, as the kernels compute it: floor((x - lower) / dx - 1/2).
+    base = torch.floor((x - lower) * (1.0 / domain.dx) - 0.5).long()
     base = torch.minimum(base.clamp(min=0), resolution - 1)
     block, cell = base // BLOCK, base % BLOCK
     blocks = resolution // BLOCK

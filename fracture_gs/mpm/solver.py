@@ -17,6 +17,7 @@ import torch
 from fracture_gs.mpm import ops
 from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.materials import COLUMN, MaterialTable, elastic_energy
+from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
 
@@ -30,19 +31,27 @@ CONTACT_VOLUME_FRACTION = 0.75
 class CollisionMPM:
     """Multi-body MLS-MPM simulator (collision mode) or the shared-grid baseline (mls mode).
 
-    Particles are simulated in the order given. The compiled transfers are fastest when each grid
-    block's particles are neighbours in memory: ``build_scene`` orders them so; for a hand-made
-    set use ``particles.take(spatial_order(particles.x, particles.obj_id, domain))``
-    (:mod:`fracture_gs.mpm.ordering`).
+    Particle order: the compiled transfers are fastest when each grid block's particles are
+    neighbours in memory (:mod:`fracture_gs.mpm.ordering`). ``build_scene`` hands the particles
+    over in that order, and every ``reorder_every`` substeps (0: never) the solver sorts its
+    particles again, since they drift apart as bodies deform and break. ``particles``, ``state``
+    and ``stress`` are always in the solver's current order (``input_index[i]`` is the row of
+    particle ``i`` in the ParticleSet given to the constructor); :meth:`state_in_input_order`
+    gives the state in the constructor's order, as frames are written.
     """
 
     def __init__(self, particles: ParticleSet, materials: Sequence, domain: Domain, *,
                  contact: ContactSettings | None = None, boundaries: Sequence = (),
                  gravity: Sequence[float] = (0.0, 0.0, -9.8), cfl: float = 0.3,
                  object_names: Sequence[str] | None = None, backend: str = "auto",
-                 device: torch.device | None = None) -> None:
+                 device: torch.device | None = None, reorder_every: int = 50) -> None:
         self.device = device if device is not None else particles.x.device
         self.particles = particles.to(self.device)
+        self.input_particles = self.particles  # the constructor's order, kept for checkpoints
+        if int(reorder_every) < 0:
+            raise ValueError(f"reorder_every must be >= 0, got {reorder_every}")
+        self.reorder_every = int(reorder_every)
+        self.input_index = torch.arange(len(self.particles), device=self.device)
         self.materials = list(materials)
         self.domain = domain
         self.contact = contact if contact is not None else ContactSettings()
@@ -65,14 +74,14 @@ class CollisionMPM:
         collision_mode = self.contact.mode == "collision"
         self.n_grids = self.n_objects if collision_mode else 1
         self.geometry = GridGeometry.from_domain(domain, self.n_grids)
-        self.grid_id = (self.particles.obj_id if collision_mode
-                        else torch.zeros_like(self.particles.obj_id)).to(torch.int32).contiguous()
+        self.grid_id = self._grid_ids(self.particles)
         self.use_contact = collision_mode and self.n_grids >= 2
         self.grid = GridFields.zeros(self.geometry, self.device, with_contact=self.use_contact)
         self.min_contact_volume = CONTACT_VOLUME_FRACTION * self.geometry.dx ** 3
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
         self.state = self._initial_state(table)
-        self.last_bins: ParticleBins | None = None  # bins of the latest substep (diagnostics)
+        # Bins of the latest substep (diagnostics; `order` indexes the particle order of that substep).
+        self.last_bins: ParticleBins | None = None
         self.max_speed = float(self.state.v.norm(dim=1).max()) if len(self.particles) else 0.0
 
     # ------------------------------------------------------------------ set-up
@@ -88,6 +97,12 @@ class CollisionMPM:
                 self.ground_friction = float(boundary.friction)
             else:
                 raise TypeError(f"unknown boundary {boundary!r}")
+
+    def _grid_ids(self, particles: ParticleSet) -> torch.Tensor:
+        """Grid of each particle: its object's (collision mode) or the shared grid 0 (mls)."""
+        if self.contact.mode == "collision":
+            return particles.obj_id.to(torch.int32).contiguous()
+        return torch.zeros_like(particles.obj_id, dtype=torch.int32)
 
     def _initial_state(self, table: MaterialTable) -> SimState:
         n = len(self.particles)
@@ -127,14 +142,51 @@ class CollisionMPM:
         self.stress = stress
         self.last_bins = bins
         self.max_speed = stats.max_speed
+        if self.reorder_every and self.state.step % self.reorder_every == 0:
+            self.reorder()
         return stats.clamped
+
+    def reorder(self) -> None:
+        """Sort the particles by object, grid block and cell again (faster transfers).
+
+        Only the storage order changes: every per-particle array moves alike, so the physics is
+        the same up to the order in which P2G sums a node's contributions.
+        """
+        self._apply_order(spatial_order(self.state.x, self.particles.obj_id, self.domain))
+
+    def _apply_order(self, order: torch.Tensor) -> None:
+        """Move every per-particle array so that new row i is old row order[i]."""
+        s = self.state
+
+        def rows(t: torch.Tensor) -> torch.Tensor:
+            return torch.index_select(t, 0, order)
+
+        self.particles = self.particles.take(order)
+        self.grid_id = rows(self.grid_id)
+        self.stress = rows(self.stress)
+        self.input_index = rows(self.input_index)
+        self.state = SimState(x=rows(s.x), v=rows(s.v), C=rows(s.C), F_E=rows(s.F_E), alpha=rows(s.alpha),
+                              fractured=rows(s.fractured), time=s.time, step=s.step)
+
+    def state_in_input_order(self) -> SimState:
+        """The state with rows in the order of the ParticleSet given to the constructor."""
+        s = self.state
+        where = torch.empty_like(self.input_index)  # where[j]: current row of input particle j
+        where[self.input_index] = torch.arange(len(where), device=where.device)
+
+        def rows(t: torch.Tensor) -> torch.Tensor:
+            return torch.index_select(t, 0, where)
+
+        return SimState(x=rows(s.x), v=rows(s.v), C=rows(s.C), F_E=rows(s.F_E), alpha=rows(s.alpha),
+                        fractured=rows(s.fractured), time=s.time, step=s.step)
 
     def _check(self, stats: G2PStats, dt: float) -> None:
         """Refuse a substep whose result is non-finite or implausibly fast (state not committed)."""
         where = f"t={self.state.time + dt:.6g}s (step {self.state.step + 1})"
         if stats.first_nonfinite >= 0:
+            particle = int(self.input_index[stats.first_nonfinite])  # as numbered in the input
             raise SimulationBlowUp(f"{where}: non-finite position, velocity or deformation gradient at particle "
-                                   f"{stats.first_nonfinite}; try a smaller cfl or a finer grid")
+                                   f"{particle}; try a smaller cfl or a finer grid")
         if stats.max_speed * dt > self.domain.size:
             raise SimulationBlowUp(f"{where}: speed {stats.max_speed:.3g} crosses the domain in one step; "
                                    f"try a smaller cfl")
@@ -193,9 +245,11 @@ class CollisionMPM:
 
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
-        """Everything needed to continue bit-identically (numpy arrays + clock)."""
+        """Everything needed to continue bit-identically (numpy arrays in the solver's current
+        particle order, that order as ``input_index``, and the clock)."""
         arrays = {key: getattr(self.state, key) for key in STATE_KEYS if key != "stress"}
         arrays["stress"] = self.stress
+        arrays["input_index"] = self.input_index
         out = {key: value.cpu().numpy() for key, value in arrays.items()}
         out["time"] = np.float64(self.state.time)
         out["step"] = np.int64(self.state.step)
@@ -212,6 +266,15 @@ class CollisionMPM:
             if value.shape[0] != n:
                 raise ValueError(f"checkpoint '{key}' has {value.shape[0]} particles, the scene has {n}")
             tensors[key] = value.contiguous()
+        # The particle order the state was saved in (checkpoints without it: the input order).
+        order = torch.arange(n, device=self.device)
+        if "input_index" in data:
+            order = torch.as_tensor(np.asarray(data["input_index"]), device=self.device).long()
+            if order.shape != (n,) or not torch.equal(torch.sort(order).values, torch.arange(n, device=self.device)):
+                raise ValueError("checkpoint 'input_index' is not a permutation of the scene's particles")
+        self.particles = self.input_particles.take(order)
+        self.grid_id = self._grid_ids(self.particles)
+        self.input_index = order
         self.stress = tensors.pop("stress").float()
         self.state = SimState(x=tensors["x"].float(), v=tensors["v"].float(), C=tensors["C"].float(),
                               F_E=tensors["F_E"].float(), alpha=tensors["alpha"].float(),

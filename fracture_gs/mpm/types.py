@@ -96,7 +96,7 @@ class ParticleSet:
 
     def take(self, index: torch.Tensor) -> "ParticleSet":
         """The particles at ``index`` (a permutation reorders the set), every column alike."""
-        return ParticleSet(**{f.name: getattr(self, f.name)[index].contiguous() for f in fields(self)})
+        return ParticleSet(**{f.name: torch.index_select(getattr(self, f.name), 0, index) for f in fields(self)})
 
 
 @dataclass
