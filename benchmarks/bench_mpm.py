@@ -2,7 +2,8 @@
 
 Scene: two NACC spheres already in contact and driven into each other, so the contact pass and
 the plastic projection both really run. The step is bins + P2G + grid update + contact +
-boundaries + G2P with the NACC return map.
+boundaries + G2P with the NACC return map; the particles are in simulate.py's order and the
+solver's periodic re-sort (every 50 substeps) is part of the timed steps.
 
     python benchmarks/bench_mpm.py [--grid 128] [--particles 50000 200000] [--device cpu]
 
