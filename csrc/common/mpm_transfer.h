@@ -20,6 +20,11 @@ struct MPMGeometry {
   int n_grids;      // objects in collision mode, 1 in mls mode
 };
 
+// Stencil weights of a particle at x (3 floats) along the three axes.
+HOST_DEVICE inline void stencil_weights(const float* x, const MPMGeometry& geo, AxisWeights aw[3]) {
+  for (int d = 0; d < 3; ++d) aw[d] = axis_weights((x[d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+}
+
 struct G2PInputs {
   const float* x;
   const float* F_E;
@@ -97,7 +102,7 @@ HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGe
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   AxisWeights aw[3];
-  for (int d = 0; d < 3; ++d) aw[d] = axis_weights((in.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+  stencil_weights(in.x + 3 * q, geo, aw);
   const float* velocity = grid_velocity + 3 * (long long)in.grid_id[q] * s.nodes();
   float vp[3] = {0.f, 0.f, 0.f};
   float B[9] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};

@@ -72,7 +72,6 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   std::vector<uint8_t> reach(n);  // bit d set: the stencil reaches the next block along axis d
   // slot[t * n_keys + k]: particles of key k in thread t's range, then the first slot they take.
   std::vector<int32_t> slot((size_t)parts * n_keys, 0);
-  std::vector<int32_t> key_start(n_keys + 1, 0);
   std::vector<long long> chunk_total(parts + 1, 0), chunk_cells(parts + 1, 0);
   long long bad = -1;
 #pragma omp parallel num_threads(parts) reduction(max : bad)
@@ -135,7 +134,6 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
     // Slots, and the non-empty keys ("cells") with their first slot, in key order.
     long long running = chunk_total[t], cell = chunk_cells[t];
     for (long long k = k_begin; k < k_end; ++k) {
-      key_start[k] = (int32_t)running;
       const long long first = running;
       for (int u = 0; u < team; ++u) {
         const int32_t c = slot[(size_t)u * n_keys + k];
@@ -148,9 +146,10 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
         ++cell;
       }
     }
-    if (t == team - 1) key_start[n_keys] = (int32_t)running;
   }
   if (bad >= 0) return bad;
+  const int n_cells = (int)bins->cell_key.size();
+  bins->cell_start[n_cells] = (int32_t)n;
   bins->order.resize(n);
 #pragma omp parallel num_threads(parts)
   {
@@ -172,13 +171,12 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   // The blocks the cells' stencils touch: the cell's block and the upper neighbours its
   // particles reach. Several cells may mark one block, all with the same value (relaxed atomic
   // stores: no ordering needed, the result is a set).
-  const int n_cells = (int)bins->cell_key.size();
   std::vector<uint8_t> touched_mark(n_keys, 0);
 #pragma omp parallel for schedule(static)
   for (int c = 0; c < n_cells; ++c) {
     const int k = bins->cell_key[c];
     uint8_t r = 0;
-    for (int i = key_start[k]; i < key_start[k + 1]; ++i) r |= reach[bins->order[i]];
+    for (int i = bins->cell_start[c]; i < bins->cell_start[c + 1]; ++i) r |= reach[bins->order[i]];
     const int g = k / n_blocks, block = k % n_blocks;
     const int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
     for (int di = 0; di <= ((r >> 0) & 1); ++di)
@@ -187,7 +185,6 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
           std::atomic_ref<uint8_t>(touched_mark[(long long)g * n_blocks + ((bi + di) * s.by + bj + dj) * s.bz + bk + dk])
               .store(1, std::memory_order_relaxed);
   }
-  bins->cell_start[n_cells] = (int32_t)n;
   parallel_select(n_keys, &bins->touched, [&](long long k) { return touched_mark[k] != 0; });
   bins->contact_blocks.clear();
   if (geo.n_grids >= 2) {
@@ -253,7 +250,7 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
     const int q = bins.order[it];
     if (it + kPrefetchAhead < end) prefetch_particle(p, bins.order[it + kPrefetchAhead]);
     AxisWeights aw[3];
-    for (int d = 0; d < 3; ++d) aw[d] = axis_weights((p.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+    stencil_weights(p.x + 3 * q, geo, aw);
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
@@ -441,7 +438,7 @@ bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, fl
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   AxisWeights aw[3];
-  for (int d = 0; d < 3; ++d) aw[d] = axis_weights((in.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+  stencil_weights(in.x + 3 * q, geo, aw);
   const float* velocity = grid_velocity + 3 * (long long)in.grid_id[q] * s.nodes();
   int oz[3];
   float wz_pz[3];

@@ -64,13 +64,14 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
     if (t < count) {
       const int q = bins.order[chunk + t];
       StagedParticle& sp = staged[t];
+      AxisWeights aw[3];
+      stencil_weights(p.x + 3 * q, geo, aw);
       for (int d = 0; d < 3; ++d) {
-        AxisWeights aw = axis_weights((p.x[3 * q + d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
-        sp.base[d] = aw.base;
-        sp.f[d] = aw.f;
+        sp.base[d] = aw[d].base;
+        sp.f[d] = aw[d].f;
         for (int a = 0; a < 3; ++a) {
-          sp.w[d][a] = aw.w[a];
-          sp.dw[d][a] = aw.dw[a];
+          sp.w[d][a] = aw[d].w[a];
+          sp.dw[d][a] = aw[d].dw[a];
         }
       }
       sp.mass = p.mass[q];

@@ -156,29 +156,17 @@ class CollisionMPM:
 
     def _apply_order(self, order: torch.Tensor) -> None:
         """Move every per-particle array so that new row i is old row order[i]."""
-        s = self.state
-
-        def rows(t: torch.Tensor) -> torch.Tensor:
-            return torch.index_select(t, 0, order)
-
         self.particles = self.particles.take(order)
-        self.grid_id = rows(self.grid_id)
-        self.stress = rows(self.stress)
-        self.input_index = rows(self.input_index)
-        self.state = SimState(x=rows(s.x), v=rows(s.v), C=rows(s.C), F_E=rows(s.F_E), alpha=rows(s.alpha),
-                              fractured=rows(s.fractured), time=s.time, step=s.step)
+        self.state = self.state.take(order)
+        self.grid_id = torch.index_select(self.grid_id, 0, order)
+        self.stress = torch.index_select(self.stress, 0, order)
+        self.input_index = torch.index_select(self.input_index, 0, order)
 
     def state_in_input_order(self) -> SimState:
         """The state with rows in the order of the ParticleSet given to the constructor."""
-        s = self.state
         where = torch.empty_like(self.input_index)  # where[j]: current row of input particle j
         where[self.input_index] = torch.arange(len(where), device=where.device)
-
-        def rows(t: torch.Tensor) -> torch.Tensor:
-            return torch.index_select(t, 0, where)
-
-        return SimState(x=rows(s.x), v=rows(s.v), C=rows(s.C), F_E=rows(s.F_E), alpha=rows(s.alpha),
-                        fractured=rows(s.fractured), time=s.time, step=s.step)
+        return self.state.take(where)
 
     def _check(self, stats: G2PStats, dt: float) -> None:
         """Refuse a substep whose result is non-finite or implausibly fast (state not committed)."""

@@ -112,6 +112,13 @@ class SimState:
     time: float = 0.0
     step: int = 0
 
+    def take(self, index: torch.Tensor) -> "SimState":
+        """The particles at ``index`` (a permutation reorders them), same clock."""
+        def rows(t: torch.Tensor) -> torch.Tensor:
+            return torch.index_select(t, 0, index)
+        return SimState(x=rows(self.x), v=rows(self.v), C=rows(self.C), F_E=rows(self.F_E),
+                        alpha=rows(self.alpha), fractured=rows(self.fractured), time=self.time, step=self.step)
+
 
 @dataclass
 class StepStats:
