@@ -3,8 +3,8 @@
 // derivative of that alpha w.r.t. the Gaussian's 2D mean, conic and opacity.
 #pragma once
 #include <cstdint>
-#include <cstring>
 
+#include "common/fast_math.h"
 #include "common/gaussian.h"
 #include "common/hd.h"
 
@@ -24,14 +24,12 @@ enum SlotField {
   kGradGreen, kGradBlue, kGradDepth, kSlotStride
 };
 
-HOST_DEVICE inline float bits_to_float(int32_t bits) {
-#if defined(__CUDA_ARCH__)
-  return __int_as_float(bits);
-#else
-  float f;
-  std::memcpy(&f, &bits, sizeof(f));
-  return f;
-#endif
+// e^r for |r| <= ln2/2 (the reduced argument of exp_nonpositive): degree-6 Taylor polynomial.
+// T: float, or a GCC vector of floats (the CPU rasterizer's lanes).
+template <class T>
+HOST_DEVICE FGS_FORCE_INLINE T exp_reduced_taylor(T r) {
+  const float taylor[7] = {1.f, 1.f, 0.5f, 1.f / 6.f, 1.f / 24.f, 1.f / 120.f, 1.f / 720.f};
+  return fast_math::polynomial(r, taylor);
 }
 
 // exp(x) for x in [-80, 0] to ~2e-7 relative error: 2^n · p(r), |r| <= ln2/2, degree-6
@@ -41,14 +39,7 @@ HOST_DEVICE inline float exp_nonpositive(float x) {
   x = x > -80.f ? x : -80.f;
   const float n = floorf(x * 1.4426950408889634f + 0.5f);
   const float r = (x - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
-  float p = 1.f / 720.f;
-  p = p * r + 1.f / 120.f;
-  p = p * r + 1.f / 24.f;
-  p = p * r + 1.f / 6.f;
-  p = p * r + 0.5f;
-  p = p * r + 1.f;
-  p = p * r + 1.f;
-  return p * bits_to_float(((int32_t)n + 127) << 23);
+  return exp_reduced_taylor(r) * fast_math::bits_float(((int32_t)n + 127) << 23);
 }
 
 // Alpha of a projected Gaussian g (kProjStride floats) at the pixel centre (px, py):

@@ -253,14 +253,7 @@ inline LaneF exp_nonpositive_lanes(LaneF x) {
   const LaneI above = truncated_f > t;  // -1 where truncation rounded up (negative t)
   const LaneF n = truncated_f + __builtin_convertvector(above, LaneF);
   const LaneF r = (x - n * 0.693145751953125f) - n * 1.428606765330187e-06f;
-  LaneF p = lanes_of(1.f / 720.f);
-  p = p * r + 1.f / 120.f;
-  p = p * r + 1.f / 24.f;
-  p = p * r + 1.f / 6.f;
-  p = p * r + 0.5f;
-  p = p * r + 1.f;
-  p = p * r + 1.f;
-  return p * (LaneF)((truncated + above + 127) << 23);
+  return exp_reduced_taylor(r) * (LaneF)((truncated + above + 127) << 23);
 }
 
 // splat_alpha (common/blend.h) of one Gaussian at the pixel centres (px[lane], py).
