@@ -1,4 +1,5 @@
-"""Physics of the Collision-MPM solver (issue 2, acceptance 3–6).
+"""Physics of the Collision-MPM solver (issue 2, acceptance 3–6; issue 15: thin and surface-only
+bodies, the contact check's effect, boundaries by behaviour).
 
 Every scene also checks acceptance 4: kinetic + elastic + gravitational energy never rises
 above its initial value by more than 1 %. Measured numbers are printed (``pytest -s``) and
