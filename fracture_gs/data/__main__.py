@@ -1,12 +1,15 @@
 """``python -m fracture_gs.data DATASET``: load a dataset as ``train.py`` would and summarise it.
 
 A quick check of a folder before a long training run: every view, image and mask is read
-(and ``parts.json`` when the folder has one). Exit status 0 when the dataset loads, 2 with one
-``error: <file>: <problem>`` line when it does not, 130 when interrupted.
+(and ``parts.json`` when the folder has one). ``--mesh-check`` also ray-casts ``gt_mesh.ply``
+(synthetic datasets) through every camera and prints the IoU of its silhouette with the masks:
+cameras, images and mesh agree when it is close to 1. Exit status 0 when the dataset loads, 2
+with one ``error: <file>: <problem>`` line when it does not, 130 when interrupted.
 """
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import sys
 from collections.abc import Sequence
@@ -16,6 +19,7 @@ from fracture_gs.data.loading import load_dataset
 from fracture_gs.data.parts import PartSpecError, load_part_spec
 
 PARTS_FILE = "parts.json"
+MESH_FILE = "gt_mesh.ply"
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -28,6 +32,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="integer factor, or -1 to cap the width at 1600 pixels")
     parser.add_argument("--holdout-every", type=int, default=0,
                         help="COLMAP / DTU: every k-th view is a test view")
+    parser.add_argument("--mesh-check", action="store_true",
+                        help=f"compare the masks with the silhouettes of {MESH_FILE}")
     return parser.parse_args(argv)
 
 
@@ -41,6 +47,31 @@ def describe(dataset: Dataset) -> list[str]:
     if dataset.points is not None:
         lines.append(f"points     {dataset.points.shape[0]} sparse points")
     return lines
+
+
+def mesh_check(dataset: Dataset, folder: str) -> str:
+    """Summary line of the mask / mesh-silhouette agreement (DatasetError when impossible)."""
+    import trimesh
+
+    from fracture_gs.data.files import read_bytes
+    from fracture_gs.data.synthetic.silhouette import mask_mesh_ious
+
+    path = os.path.join(folder, MESH_FILE)
+    if dataset.masks is None:
+        raise DatasetError(f"{folder}: --mesh-check needs masks (alpha channels or mask/)")
+    data = read_bytes(path)
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type="ply", process=False)
+        vertices, faces = mesh.vertices, mesh.faces
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise DatasetError(f"{path}: cannot be read as a triangle mesh ({exc})") from None
+    try:
+        ious = mask_mesh_ious(dataset.cameras, [m.numpy() for m in dataset.masks], vertices,
+                              faces)
+    except ValueError as exc:
+        raise DatasetError(f"{path}: {exc}") from None
+    return (f"mesh check mask IoU with {MESH_FILE}: min {min(ious):.4f}, mean "
+            f"{sum(ious) / len(ious):.4f} over {len(ious)} views")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -59,6 +90,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if os.path.exists(parts_path):
             spec = load_part_spec(parts_path)
             lines.append(f"parts      {', '.join(spec.part_names)} ({PARTS_FILE})")
+        if args.mesh_check:
+            lines.append(mesh_check(dataset, args.dataset))
     except (DatasetError, PartSpecError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
