@@ -150,10 +150,10 @@ def test_alpha_is_clamped_at_0_99(backend: str) -> None:
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("ratio", [1.02, 0.98])
+@pytest.mark.parametrize("ratio", [1.002, 0.998])
 def test_alphas_below_1_over_255_are_skipped(backend: str, ratio: float) -> None:
     """At offset (3, 1) the Gaussian factor is g = exp(-½ · 10 / 1.3); the opacity puts α at
-    1.02/255 (blended) or 0.98/255 (skipped: the pixel is exactly the background)."""
+    1.002/255 (blended) or 0.998/255 (skipped: the pixel is exactly the background)."""
     mean = (0.0, 0.0, 2.0)
     camera = camera_with_mean_at((10, 10), mean)
     g = math.exp(-0.5 * 10 / 1.3)
@@ -173,23 +173,28 @@ def test_alphas_below_1_over_255_are_skipped(backend: str, ratio: float) -> None
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_front_to_back_until_transmittance_below_1e_4(backend: str) -> None:
-    """Four Gaussians on one pixel, given out of depth order, each α = 0.95 there. T runs
-    1 → 0.05 → 0.0025 → 1.25e-4; the fourth would take it to 6.25e-6 < 1e-4, so the pixel stops
-    before it: its colour (pure red) must not appear."""
-    depths = [4.0, 2.0, 5.0, 3.0]                  # input order; blending order 2, 3, 4, 5
-    colours = {2.0: [0.0, 1.0, 0.0], 3.0: [0.0, 0.0, 1.0], 4.0: [0.0, 0.5, 0.5],
-               5.0: [1.0, 0.0, 0.0]}
+@pytest.mark.parametrize("last_transmittance", [1.02e-4, 0.98e-4])
+def test_front_to_back_until_transmittance_below_1e_4(backend: str,
+                                                      last_transmittance: float) -> None:
+    """Three Gaussians on one pixel, given out of depth order, each with the same α there,
+    chosen so that T after the third would be 1.02e-4 (it is blended) or 0.98e-4 (the pixel stops
+    before it). The third (farthest) one is pure red, so red = its weight or exactly 0."""
+    alpha = 1.0 - last_transmittance ** (1.0 / 3.0)
+    depths = [3.0, 2.0, 4.0]                       # input order; blending order 2, 3, 4
+    colours = {2.0: [0.0, 1.0, 0.0], 3.0: [0.0, 0.0, 1.0], 4.0: [1.0, 0.0, 0.0]}
     camera = camera_with_mean_at((10, 10), (0.0, 0.0, 2.0))
-    out = render(backend, camera, [[0.0, 0.0, z] for z in depths], [0.95] * 4,
+    out = render(backend, camera, [[0.0, 0.0, z] for z in depths], [alpha] * 3,
                  scales=[[0.05 * z] * 3 for z in depths],
                  colors=[colours[z] for z in depths], background=(0.0, 0.0, 0.0))
-    weights = [0.95, 0.05 * 0.95, 0.0025 * 0.95]   # z = 2, 3, 4
+    blended = 3 if last_transmittance >= 1e-4 else 2
+    weights = [alpha * (1.0 - alpha) ** k for k in range(blended)]
     expected_rgb = [sum(w * colours[z][ch] for w, z in zip(weights, (2.0, 3.0, 4.0)))
                     for ch in range(3)]
     assert out["rgb"][10, 10].tolist() == pytest.approx(expected_rgb, abs=TOLERANCE)
-    assert float(out["rgb"][10, 10, 0]) < 1e-6     # the red fourth Gaussian is not blended
-    assert float(out["alpha"][10, 10]) == pytest.approx(1 - 1.25e-4, abs=TOLERANCE)
+    if blended == 2:
+        assert float(out["rgb"][10, 10, 0]) == 0.0   # the red third Gaussian is not blended
+    assert float(out["alpha"][10, 10]) == pytest.approx(1 - (1 - alpha) ** blended,
+                                                        abs=TOLERANCE)
     expected_depth = sum(w * z for w, z in zip(weights, (2.0, 3.0, 4.0)))
     assert float(out["depth"][10, 10]) == pytest.approx(expected_depth, abs=5 * TOLERANCE)
 

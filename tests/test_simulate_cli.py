@@ -172,6 +172,11 @@ def frames_of(out: Path) -> list[dict[str, np.ndarray]]:
     return [load_frame(f) for f in files]
 
 
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+
+
 def assert_same_frames(a: Path, b: Path) -> None:
     fa, fb = frames_of(a), frames_of(b)
     assert len(fa) == len(fb)
@@ -246,18 +251,25 @@ def test_resume_equals_uninterrupted_run(tmp_path: Path, ballistic: None,
     assert code == 0 and "nothing to simulate" in stdout
 
 
+@pytest.mark.parametrize("last_frame", ["missing", "truncated"])
 def test_resume_after_kill_between_checkpoint_and_frame(
-        tmp_path: Path, ballistic: None, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, last_frame: str, ballistic: None,
+        capsys: pytest.CaptureFixture[str]) -> None:
     scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
     straight, killed = tmp_path / "straight", tmp_path / "killed"
     run_main(["--scene", str(scene), "--out", str(straight), "--frames", "5"], capsys)
     run_main(["--scene", str(scene), "--out", str(killed), "--frames", "3"], capsys)
     # the checkpoint of frame 3 is written before frame 3's file: a kill in between leaves
-    # the checkpoint ahead of the frames
-    (killed / "frames" / "frame_00003.npz").unlink()
-    code, _, _ = run_main(["--scene", str(scene), "--out", str(killed), "--frames", "5",
-                           "--resume"], capsys)
-    assert code == 0
+    # the checkpoint ahead of the frames. It holds that frame's exact state, so a resume
+    # rewrites the frame (also when the file was damaged afterwards).
+    frame_3 = killed / "frames" / "frame_00003.npz"
+    if last_frame == "missing":
+        frame_3.unlink()
+    else:
+        _truncate(frame_3)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(killed), "--frames", "5",
+                                "--resume"], capsys)
+    assert code == 0, stderr
     assert_same_frames(straight, killed)
 
 
@@ -310,6 +322,15 @@ def test_blow_up_stops_with_exit_1_and_keeps_frames(
 
 
 # ----------------------------------------------------------------------------- invalid input
+
+
+def wait_for_file(proc: subprocess.Popen[str], path: Path, timeout: float = 120) -> None:
+    """Wait until a running simulate.py has written ``path``."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
 
 
 def _simulate_subprocess(args: list[str], cwd: Path, **kwargs: Any) -> subprocess.Popen[str]:
@@ -469,11 +490,7 @@ def test_real_subprocess_kill_and_resume(tmp_path: Path,
     killed, straight = tmp_path / "killed", tmp_path / "straight"
     proc = _simulate_subprocess(["--scene", str(scene), "--out", str(killed), "--device",
                                  "cpu"], cwd=tmp_path)
-    deadline = time.monotonic() + 120
-    while not (killed / "frames" / "frame_00002.npz").exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
+    wait_for_file(proc, killed / "frames" / "frame_00002.npz")
     proc.send_signal(signal.SIGKILL)
     proc.communicate()
     done = len(frames_of(killed))
@@ -538,11 +555,6 @@ def test_out_names_an_existing_file(tmp_path: Path, ballistic: None,
     assert taken.read_text() == "not a folder\n"
 
 
-def _truncate(path: Path) -> None:
-    data = path.read_bytes()
-    path.write_bytes(data[:len(data) // 2])
-
-
 @pytest.mark.parametrize("damaged", ["checkpoint.npz", "particles.npz",
                                      "frames/frame_00000.npz", "frames/frame_00001.npz"])
 def test_resume_with_a_truncated_file(tmp_path: Path, damaged: str, ballistic: None,
@@ -555,20 +567,6 @@ def test_resume_with_a_truncated_file(tmp_path: Path, damaged: str, ballistic: N
                                 "--resume"], capsys)
     assert_one_line_error(code, stderr, f"error: --resume: {out / damaged}: cannot be read (",
                           "damaged", "without --resume")
-
-
-def test_resume_rewrites_a_truncated_last_frame(tmp_path: Path, ballistic: None,
-                                                capsys: pytest.CaptureFixture[str]) -> None:
-    """The checkpoint holds the last frame's exact state: a damaged last frame is rewritten."""
-    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
-    straight, damaged = tmp_path / "straight", tmp_path / "damaged"
-    run_main(["--scene", str(scene), "--out", str(straight), "--frames", "4"], capsys)
-    run_main(["--scene", str(scene), "--out", str(damaged), "--frames", "2"], capsys)
-    _truncate(damaged / "frames" / "frame_00002.npz")
-    code, _, stderr = run_main(["--scene", str(scene), "--out", str(damaged), "--frames", "4",
-                                "--resume"], capsys)
-    assert code == 0, stderr
-    assert_same_frames(straight, damaged)
 
 
 def test_resume_with_a_foreign_checkpoint(tmp_path: Path, ballistic: None,
@@ -656,11 +654,7 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path: Path) -> None:
     out = tmp_path / "sim"
     proc = _simulate_subprocess(["--scene", str(scene), "--out", str(out), "--device", "cpu"],
                                 cwd=tmp_path)
-    deadline = time.monotonic() + 120
-    while not (out / "frames" / "frame_00001.npz").exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
+    wait_for_file(proc, out / "frames" / "frame_00001.npz")
     proc.send_signal(signal.SIGINT)
     _, stderr = proc.communicate(timeout=120)
     assert proc.returncode == 130, stderr
