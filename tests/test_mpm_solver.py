@@ -84,15 +84,16 @@ def test_cpu_kernels_are_deterministic_for_any_thread_count():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_state_dict_round_trip_continues_identically(backend):
+    steps = 10 if backend == "cpp" else 3   # the torch twin is ~100x slower
     first = small_scene(backend)
-    for _ in range(10):
+    for _ in range(steps):
         first.step(first.stable_dt())
     saved = {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in first.state_dict().items()}
-    for _ in range(10):
+    for _ in range(steps):
         first.step(first.stable_dt())
     second = small_scene(backend)
     second.load_state_dict(saved)
-    for _ in range(10):
+    for _ in range(steps):
         second.step(second.stable_dt())
     assert torch.equal(first.state.x, second.state.x)
     assert torch.equal(first.state.F_E, second.state.F_E)

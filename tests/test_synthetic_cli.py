@@ -113,7 +113,9 @@ def test_foreign_staging_folder_is_not_deleted(tmp_path: Path, no_rendering: Non
     assert (staging / "keep.txt").read_text() == "mine\n"
 
 
-def test_empty_folder_and_new_folder_are_accepted(tmp_path: Path) -> None:
-    (tmp_path / "empty").mkdir()
-    generator.check_output_folder(str(tmp_path / "empty"), overwrite=False)
+def test_new_folder_is_accepted_and_an_empty_one_with_force(tmp_path: Path) -> None:
     generator.check_output_folder(str(tmp_path / "new" / "teapot"), overwrite=False)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileExistsError, match="already exists"):
+        generator.check_output_folder(str(tmp_path / "empty"), overwrite=False)
+    generator.check_output_folder(str(tmp_path / "empty"), overwrite=True)   # nothing to lose

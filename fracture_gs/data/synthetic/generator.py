@@ -72,10 +72,10 @@ def _is_empty_folder(path: str) -> bool:
 def check_output_folder(out: str, overwrite: bool) -> None:
     """FileExistsError unless ``out`` may receive a new dataset.
 
-    It may when it does not exist or is an empty folder; with ``overwrite`` also when it is a
-    folder this generator wrote (it holds ``generator.json``). Anything else (a file, a link,
-    a folder with other content) is never replaced. The staging folder ``<out>.partial`` may
-    only hold an earlier run's leftovers (its marker file).
+    It may when it does not exist; with ``overwrite`` (``--force``) also when it is an empty
+    folder or a folder this generator wrote (it holds ``generator.json``). Anything else (a
+    file, a link, a folder with other content) is never replaced. The staging folder
+    ``<out>.partial`` may only hold an earlier run's leftovers (its marker file).
     """
     partial = partial_folder(out)
     if os.path.lexists(partial) and not _is_empty_folder(partial) and \
@@ -87,11 +87,11 @@ def check_output_folder(out: str, overwrite: bool) -> None:
 
 def _check_target(out: str, overwrite: bool) -> None:
     """The ``out`` half of :func:`check_output_folder`."""
-    if not os.path.lexists(out) or _is_empty_folder(out):
+    if not os.path.lexists(out):
         return
     if os.path.islink(out) or not os.path.isdir(out):
         raise FileExistsError(f"{out}: exists and is not a folder; choose another --out")
-    if not os.path.isfile(os.path.join(out, GENERATOR_FILE)):
+    if not _is_empty_folder(out) and not os.path.isfile(os.path.join(out, GENERATOR_FILE)):
         raise FileExistsError(f"{out}: exists and was not written by this generator (no "
                               f"{GENERATOR_FILE}); --force only replaces generated datasets, so "
                               "choose another --out (e.g. a sub-folder) or remove it yourself")
