@@ -81,7 +81,8 @@ fi
 # elsewhere), its extension loads, is newer than every source and has CUDA kernels when it
 # should.
 build_is_current() {
-    (cd / && python - "$PWD" <<'PYTHON'
+    local root="$PWD"
+    (cd / && python - "$root" <<'PYTHON'
 import os
 import sys
 
