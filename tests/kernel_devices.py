@@ -21,5 +21,5 @@ def cuda_kernels_runnable() -> bool:
 KERNEL_DEVICES = [
     pytest.param("cpu", id="cpu"),
     pytest.param("cuda", id="cuda", marks=pytest.mark.skipif(
-        not cuda_kernels_runnable(), reason="no CUDA device, or fracture_gs._C built without CUDA kernels")),
+        not cuda_kernels_runnable(), reason="no CUDA device, or the extension was built without CUDA kernels")),
 ]
