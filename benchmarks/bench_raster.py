@@ -7,7 +7,7 @@ latter) with the compiled backend, and the dense reference at a size it can hand
 (``--reference-num`` Gaussians at ``--reference-size``², with the compiled backend on the same
 scene for comparison). Prints one JSON object.
 
-Usage: PYTHONPATH=. python benchmarks/bench_raster.py [--skip-1m] [--repeats 5]
+Usage: PYTHONPATH=. python benchmarks/bench_raster.py [--skip-1m] [--repeats 5] [--device cpu|cuda]
 """
 from __future__ import annotations
 
@@ -46,13 +46,20 @@ def sphere_camera(size: int) -> Camera:
                           size, size)
 
 
-def _time_ms(fn, repeats: int) -> tuple[float, float]:
-    """Median wall-clock ms and median process CPU ms (all threads) of fn()."""
+def _synchronize(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _time_ms(fn, repeats: int, device: torch.device) -> tuple[float, float]:
+    """Median wall-clock ms and median process CPU ms (all threads) of fn() (finished on the device)."""
     fn()  # warm-up
+    _synchronize(device)
     wall, cpu = [], []
     for _ in range(repeats):
         start, start_cpu = time.perf_counter(), time.process_time()
         fn()
+        _synchronize(device)
         wall.append((time.perf_counter() - start) * 1e3)
         cpu.append((time.process_time() - start_cpu) * 1e3)
     return statistics.median(wall), statistics.median(cpu)
@@ -75,8 +82,9 @@ def measure(scene: dict[str, torch.Tensor], camera: Camera, backend: str, repeat
     with torch.no_grad():
         out = rasterize(scene["means"], scene["opacities"], camera, scales=scene["scales"],
                         quats=scene["quats"], sh=scene["sh"], backend=backend)
-    forward_ms, forward_cpu_ms = _time_ms(forward, repeats)
-    both_ms, both_cpu_ms = _time_ms(forward_backward, repeats)
+    device = scene["means"].device
+    forward_ms, forward_cpu_ms = _time_ms(forward, repeats, device)
+    both_ms, both_cpu_ms = _time_ms(forward_backward, repeats, device)
     # cpu_ms: CPU time summed over threads; on a shared, loaded machine it is the steadier
     # figure (wall / cpu shows how much of the cores the process actually got).
     return {"forward_ms": round(forward_ms, 2), "forward_backward_ms": round(both_ms, 2),
@@ -93,17 +101,23 @@ def main() -> None:
     parser.add_argument("--skip-1m", action="store_true", help="skip the 1M-Gaussian run")
     parser.add_argument("--reference-num", type=int, default=1000)
     parser.add_argument("--reference-size", type=int, default=64)
+    parser.add_argument("--device", default="cpu", help="cpu or cuda: where the scene lives and the kernels run")
     args = parser.parse_args()
     if compiled_module() is None:
         raise SystemExit("bench_raster: fracture_gs._C is not built")
-    result = {"threads": compiled_module().openmp_max_threads(), "cpu_count": os.cpu_count(),
+    device = torch.device(args.device)
+
+    def on_device(scene: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return {k: v.to(device) for k, v in scene.items()}
+
+    result = {"device": str(device), "threads": compiled_module().openmp_max_threads(), "cpu_count": os.cpu_count(),
               "load_average_1min": round(os.getloadavg()[0], 2), "image": [args.size, args.size],
               "cpp": {}}
     counts = [100_000] if args.skip_1m else [100_000, 1_000_000]
     for num in counts:
-        result["cpp"][str(num)] = measure(sphere_scene(num), sphere_camera(args.size), "cpp",
+        result["cpp"][str(num)] = measure(on_device(sphere_scene(num)), sphere_camera(args.size), "cpp",
                                           args.repeats)
-    small_scene, small_camera = sphere_scene(args.reference_num), sphere_camera(args.reference_size)
+    small_scene, small_camera = on_device(sphere_scene(args.reference_num)), sphere_camera(args.reference_size)
     result["reference_size"] = {"num": args.reference_num,
                                 "image": [args.reference_size, args.reference_size],
                                 "reference": measure(small_scene, small_camera, "reference", 2),

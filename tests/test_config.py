@@ -154,6 +154,8 @@ MALFORMED = [
     ("gravity", "down", "gravity", "expected a list of 3 numbers"),
     ("contact", {"mode": "glue"}, "contact.mode", "'glue' is not one of collision, mls"),
     ("contact", {"friction": -1}, "contact.friction", "-1 is not >= 0"),
+    ("contact", {"strength": 2.5}, "contact.strength", "2.5 is not <= 2"),
+    ("contact", {"strength": -0.5}, "contact.strength", "-0.5 is not >= 0"),
     ("boundaries.1.condition", "bouncy", "boundaries[1].condition", "is not one of"),
     ("boundaries.0.type", "wall", "boundaries[0].type", "is not one of ground, box"),
     ("boundaries.0.height", 2.0, "boundaries[0].height", "2 is not < 1"),

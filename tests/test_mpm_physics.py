@@ -1,4 +1,5 @@
-"""Physics of the Collision-MPM solver (issue 2, acceptance 3–6).
+"""Physics of the Collision-MPM solver (issue 2, acceptance 3–6; issue 15: thin and surface-only
+bodies, the contact check's effect, boundaries by behaviour).
 
 Every scene also checks acceptance 4: kinetic + elastic + gravitational energy never rises
 above its initial value by more than 1 %. Measured numbers are printed (``pytest -s``) and
@@ -6,16 +7,20 @@ recorded in the README / closing note.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 import torch
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from fracture_gs.config.scene import parse_scene
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.solver import CollisionMPM
-from fracture_gs.mpm.types import ContactSettings, Domain, GroundBoundary
+from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary
 
 pytestmark = pytest.mark.extension  # tests/conftest.py: skipped without _C, failed in CI
 
@@ -91,7 +96,7 @@ def test_momentum_is_conserved_in_a_collision(mode):
     monitor.check()
 
 
-def sliding_scene(mode: str) -> tuple[CollisionMPM, int]:
+def sliding_scene(mode: str, max_gap: float = ContactSettings.max_gap) -> tuple[CollisionMPM, int]:
     domain = Domain((0, 0, 0), (1, 1, 1), 32)
     spacing = domain.dx / 2
     lower = lattice_box((0.5, 0.5, 0.4), (0.5, 0.3, 0.1), spacing)
@@ -99,21 +104,27 @@ def sliding_scene(mode: str) -> tuple[CollisionMPM, int]:
     upper = lattice_box((0.35, 0.5, 0.4 + 0.05 + 0.05), (0.15, 0.15, 0.1), spacing)
     bodies = [LatticeBody(lower, (0, 0, 0), 0, spacing), LatticeBody(upper, (1.0, 0, 0), 0, spacing)]
     solver = CollisionMPM(particle_set(bodies, [SOFT.density]), [SOFT], domain,
-                          contact=ContactSettings(mode=mode, friction=0.0), boundaries=[], gravity=(0, 0, 0))
+                          contact=ContactSettings(mode=mode, friction=0.0, max_gap=max_gap), boundaries=[],
+                          gravity=(0, 0, 0))
     return solver, int(lower.shape[0])
 
 
 def test_sliding_block_keeps_its_speed_without_adhesion():
     kept = {}
-    for mode in ("collision", "mls"):
-        solver, _ = sliding_scene(mode)
+    # collision: our detection; no_check: every node where both bodies have mass is a contact
+    # (SPEC §5.4 as written: acts across a gap and brakes at the corners); mls: one shared grid.
+    for name, mode, max_gap in (("collision", "collision", ContactSettings.max_gap),
+                                ("no_check", "collision", math.inf), ("mls", "mls", ContactSettings.max_gap)):
+        solver, _ = sliding_scene(mode, max_gap)
         monitor = EnergyMonitor(solver)
         run_time(solver, 0.15, monitor)
         top = solver.particles.obj_id == 1
-        kept[mode] = float(solver.state.v[top, 0].mean()) / 1.0
+        kept[name] = float(solver.state.v[top, 0].mean()) / 1.0
         monitor.check()
-    print(f"[adhesion/sliding] tangential speed kept: collision={kept['collision']:.3f} mls={kept['mls']:.3f}")
+    print(f"[adhesion/sliding] tangential speed kept: collision={kept['collision']:.3f} "
+          f"collision without the gap check={kept['no_check']:.3f} mls={kept['mls']:.3f}")
     assert kept["collision"] >= 0.9
+    assert kept["no_check"] < kept["collision"]
     assert kept["mls"] < kept["collision"]
 
 
@@ -140,6 +151,85 @@ def test_head_on_collision_separates_the_blocks():
     print(f"[adhesion/head-on] final gap in dx: collision={gaps['collision']:.2f} mls={gaps['mls']:.2f}")
     assert gaps["collision"] > 2.0
     assert gaps["mls"] < gaps["collision"]
+
+
+def thin_plates_scene() -> CollisionMPM:
+    """Issue 15, finding 1: two elastic plates 0.5 dx thick (one jittered particle layer, 8 particles
+    per cell) thrown at each other at +-1 m/s, collision mode, no gravity."""
+    material = [{"part": 0, "model": "elastic", "E": 2e4, "nu": 0.3, "density": 100}]
+
+    def plate(name: str, x: float, vx: float) -> dict:
+        return {"name": name, "primitive": {"shape": "box", "size": [0.008, 0.3, 0.3], "particles_per_cell": 8},
+                "transform": {"translate": [x, 0.5, 0.5]}, "velocity": [vx, 0, 0], "materials": material}
+
+    config = parse_scene({"name": "plates", "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": 64},
+                          "frames": 30, "frame_dt": 0.01, "gravity": [0, 0, 0], "contact": {"mode": "collision"},
+                          "objects": [plate("a", 0.4, 1.0), plate("b", 0.6, -1.0)]})
+    built = build_scene(config)
+    return CollisionMPM(built.particles, built.materials, built.domain, contact=built.contact,
+                        boundaries=built.boundaries, gravity=built.gravity, cfl=built.cfl)
+
+
+def test_thin_plates_never_overlap_and_move_apart():
+    solver = thin_plates_scene()
+    monitor = EnergyMonitor(solver)
+    a, b = solver.particles.obj_id == 0, solver.particles.obj_id == 1
+    p0 = solver.diagnostics()["momentum"]
+    smallest_gap, gaps = math.inf, []
+    for frame in range(30):   # they meet at about frame 10
+        solver.advance(0.01)
+        monitor.sample()
+        x = solver.state.x[:, 0]
+        gap = float(x[b].min() - x[a].max())
+        assert gap > 0.0, f"frame {frame + 1}: the plates overlap (max x of a - min x of b = {-gap:.4f})"
+        smallest_gap = min(smallest_gap, gap)
+        gaps.append(gap)
+    va, vb = float(solver.state.v[a, 0].mean()), float(solver.state.v[b, 0].mean())
+    drift = float(np.abs(solver.diagnostics()["momentum"] - p0).max())
+    print(f"[thin plates] smallest gap {smallest_gap / solver.geometry.dx:.2f} dx; final vx a={va:.3f} b={vb:.3f}; "
+          f"momentum drift {drift:.1e}")
+    assert va < -0.1 and vb > 0.1, "the plates must bounce back"
+    assert gaps[-1] > gaps[-5] > smallest_gap, "and move apart"
+    monitor.check()
+
+
+def sphere_shell(center: tuple[float, float, float], radius: float, spacing: float) -> torch.Tensor:
+    """Particles on a sphere's surface only (Fibonacci lattice, about ``spacing`` apart): a
+    surface-only body, the paper's N_v = 0."""
+    n = int(4 * math.pi * radius ** 2 / spacing ** 2)
+    i = torch.arange(n, dtype=torch.float64) + 0.5
+    polar = torch.acos(1 - 2 * i / n)
+    azimuth = math.pi * (1 + 5 ** 0.5) * i
+    unit = torch.stack([torch.cos(azimuth) * torch.sin(polar), torch.sin(azimuth) * torch.sin(polar),
+                        torch.cos(polar)], -1)
+    return (torch.tensor(center, dtype=torch.float64) + radius * unit).float()
+
+
+def test_surface_only_spheres_collide_without_interpenetrating():
+    domain = Domain((0, 0, 0), (1, 1, 1), 64)
+    spacing, radius = domain.dx / 2, 0.1
+    material = ElasticMaterial(E=2e4, nu=0.3, density=100.0)
+    bodies = [LatticeBody(sphere_shell((0.35, 0.5, 0.5), radius, spacing), (1.0, 0, 0), 0, spacing),
+              LatticeBody(sphere_shell((0.65, 0.5, 0.5), radius, spacing), (-1.0, 0, 0), 0, spacing)]
+    solver = CollisionMPM(particle_set(bodies, [material.density]), [material], domain, gravity=(0, 0, 0))
+    monitor = EnergyMonitor(solver)
+    obj = solver.particles.obj_id.numpy()
+    smallest = math.inf
+    for frame in range(25):   # they meet at about frame 5
+        solver.advance(0.01)
+        monitor.sample()
+        x = solver.state.x.numpy()
+        # The caps facing each other (within half a radius of the line of centres) stay apart ...
+        cap = np.linalg.norm(x[:, 1:] - 0.5, axis=1) < 0.5 * radius
+        overlap = x[(obj == 0) & cap, 0].max() - x[(obj == 1) & cap, 0].min()
+        assert overlap < 0.0, f"frame {frame + 1}: the shells interpenetrate by {overlap / domain.dx:.2f} dx"
+        # ... and no particle of one shell comes closer than a quarter cell to one of the other.
+        smallest = min(smallest, nearest_gap(x, obj))
+    va, vb = (float(solver.state.v[solver.particles.obj_id == k, 0].mean()) for k in (0, 1))
+    print(f"[surface-only spheres] nearest particles {smallest / domain.dx:.2f} dx apart; final vx {va:.3f} / {vb:.3f}")
+    assert smallest > 0.25 * domain.dx
+    assert va < 0.0 < vb, "the shells must move apart after the collision"
+    monitor.check()
 
 
 def drop_scene(alpha0: float, grid: int = 48) -> tuple[CollisionMPM, float]:
@@ -177,3 +267,82 @@ def test_fragment_count_is_monotonic_in_initial_hardening():
                                            for a, (f, n) in results.items()))
     counts = [results[a][1] for a in (-0.1, -0.03, -0.01)]
     assert counts[0] <= counts[1] <= counts[2] and counts[0] < counts[2]
+
+
+# ----------------------------------------------------------------------------- boundaries by behaviour
+# (issue 15, finding 8: the boundary kernels are also compared with their twin in test_mpm_kernels.py)
+
+STIFF = ElasticMaterial(E=1.0e5, nu=0.3, density=1.0e3)
+
+
+def block_scene(boundary, velocity: tuple[float, float, float], bottom: float) -> CollisionMPM:
+    """A 0.2 x 0.2 x 0.1 elastic block whose lowest particles sit half a spacing above ``bottom``,
+    under gravity, grid 32."""
+    domain = Domain((0, 0, 0), (1, 1, 1), 32)
+    spacing = domain.dx / 2
+    block = lattice_box((0.3, 0.5, bottom + 0.05), (0.2, 0.2, 0.1), spacing)
+    return CollisionMPM(particle_set([LatticeBody(block, velocity, 0, spacing)], [STIFF.density]), [STIFF], domain,
+                        boundaries=[boundary], gravity=(0, 0, -9.8))
+
+
+def mean_velocity_history(solver: CollisionMPM, duration: float, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Times and mean particle velocities (samples, 3) at ``samples`` even steps of ``duration``."""
+    monitor = EnergyMonitor(solver)
+    times, velocities = [], []
+    for _ in range(samples):
+        solver.advance(duration / samples)
+        monitor.sample()
+        times.append(solver.state.time)
+        velocities.append(solver.state.v.double().mean(0).numpy())
+    monitor.check()
+    return np.array(times), np.array(velocities)
+
+
+def test_ground_friction_decelerates_a_sliding_block_by_mu_g():
+    decelerations = {}
+    for mu in (0.0, 0.2):
+        solver = block_scene(GroundBoundary(height=0.1, friction=mu), (1.0, 0, 0), bottom=0.1)
+        t, v = mean_velocity_history(solver, 0.3, 30)
+        sliding = (t > 0.03) & (v[:, 0] > 0.1)   # after the block has settled, while it still slides
+        decelerations[mu] = -float(np.polyfit(t[sliding], v[sliding, 0], 1)[0])
+    stopped = block_scene(GroundBoundary(height=0.1, friction=0.5), (1.0, 0, 0), bottom=0.1)
+    _, v_stopped = mean_velocity_history(stopped, 0.3, 10)   # mu g = 4.9: stops after ~0.2 s
+    print(f"[ground friction] deceleration {decelerations[0.2]:.3f} m/s^2 for mu=0.2 (mu g = {0.2 * 9.8:.3f}), "
+          f"{decelerations[0.0]:.1e} for mu=0; mu=0.5 final vx {v_stopped[-1, 0]:.3f}")
+    assert abs(decelerations[0.0]) < 1e-3
+    assert decelerations[0.2] == pytest.approx(0.2 * 9.8, rel=0.05)
+    assert abs(v_stopped[-1, 0]) < 0.03   # Coulomb friction stops it; it does not push it back
+
+
+def test_floor_wall_slip_and_separate_let_a_block_slide_sticky_stops_it():
+    bottom = 3 / 32   # the box walls are 3 cells thick; particles are kept above them
+    travelled = {}
+    for condition in ("slip", "separate", "sticky"):
+        solver = block_scene(BoxBoundary(condition), (1.0, 0, 0), bottom=bottom)
+        x0 = solver.state.x.double().mean(0)
+        _, v = mean_velocity_history(solver, 0.3, 10)
+        travelled[condition] = float(solver.state.x.double().mean(0)[0] - x0[0])
+        if condition == "sticky":
+            assert float(np.abs(v[2:, 0]).min()) < 0.05, "the sticky floor stops the block"
+        else:
+            assert float(v[:, 0].min()) > 0.99, f"the {condition} floor must not brake the block"
+    print(f"[walls] distance slid along the floor in 0.3 s: " + ", ".join(f"{k}={d:.3f}" for k, d in travelled.items()))
+    assert travelled["slip"] == pytest.approx(0.3, rel=0.01)
+    assert travelled["separate"] == pytest.approx(0.3, rel=0.01)
+    assert abs(travelled["sticky"]) < 0.1 * travelled["slip"]
+
+
+def test_separate_floor_lets_a_block_leave_freely_slip_holds_its_bottom():
+    bottom = 3 / 32
+    lift_off = {}
+    for condition in ("separate", "slip"):
+        solver = block_scene(BoxBoundary(condition), (0, 0, 1.5), bottom=bottom)
+        t, v = mean_velocity_history(solver, 0.15, 5)
+        free_flight = 1.5 - 9.8 * t
+        lift_off[condition] = float(v[0, 2] - free_flight[0])
+        assert float(solver.state.x[:, 2].min()) > bottom + 0.1, f"the block must leave the {condition} floor"
+        if condition == "separate":   # nothing holds it: ballistic flight from the first step on
+            assert np.allclose(v[:, 2], free_flight, atol=2e-3)
+    print(f"[walls] mean vz at t=0.03 s minus free flight: separate={lift_off['separate']:.4f}, "
+          f"slip={lift_off['slip']:.4f} (slip zeroes the normal velocity of the wall nodes both ways)")
+    assert lift_off["slip"] < -0.01

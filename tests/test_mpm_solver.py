@@ -110,3 +110,60 @@ def test_blow_up_is_reported_and_the_state_is_not_committed(backend):
         solver.step(solver.stable_dt())
     assert torch.equal(solver.state.x, before)
     assert solver.state.step == 1
+
+
+def test_blow_up_guard_trips_when_a_particle_moves_more_than_a_cell():
+    """A particle crossing more than one cell in a substep stops the run (issue 15, finding 4): the
+    message names the step and the particle as numbered in the input, the state is not committed.
+    The earlier guard only tripped at a whole domain per step."""
+    domain = Domain((0, 0, 0), (1, 1, 1), 24)
+    spacing = domain.dx / 2
+    material = ElasticMaterial(E=2e4, nu=0.3, density=500.0)
+    lone = torch.tensor([[0.8, 0.8, 0.8]])   # its own object, far from the block: its grid is its own
+    bodies = [LatticeBody(lattice_box((0.4, 0.5, 0.4), (0.2, 0.2, 0.2), spacing), (0, 0, 0), 0, spacing),
+              LatticeBody(lone, (0, 0, 0), 0, spacing)]
+    particles = particle_set(bodies, [material.density])
+    lone_input_row = 0   # the lone particle first in the input; the solver's spatial order puts it last
+    particles = particles.take(torch.roll(torch.arange(len(particles)), 1))
+    solver = CollisionMPM(particles, [material], domain, gravity=(0, 0, 0))
+    solver.step(solver.stable_dt())
+    solver.reorder()   # rows no longer in input order: the message must still use the input's numbering
+    row = int(torch.nonzero(solver.input_index == lone_input_row))
+    assert row != lone_input_row
+    dt = solver.stable_dt()
+    solver.state.v[row] = torch.tensor([2.0 * domain.dx / dt, 0.0, 0.0])   # two cells per substep
+    before = solver.state.x.clone()
+    with pytest.raises(SimulationBlowUp, match=rf"\(step 2\): particle {lone_input_row} would move 2\.?\d* cells"):
+        solver.step(dt)
+    assert torch.equal(solver.state.x, before) and solver.state.step == 1
+    # One cell per substep less a little is still a valid step.
+    solver.state.v[row] = torch.tensor([0.9 * domain.dx / dt, 0.0, 0.0])
+    solver.step(dt)
+    assert solver.state.step == 2
+
+
+@pytest.mark.parametrize("strength", [-0.1, 2.5, float("nan")])
+def test_contact_strength_outside_0_to_2_is_refused(strength):
+    # The impulse leaves (1 - s) of the normal approach speed: s > 2 would add energy (issue 15, finding 2).
+    with pytest.raises(ValueError, match="0 <= s <= 2"):
+        ContactSettings(strength=strength)
+
+
+def test_zero_strength_means_no_friction_either():
+    """Friction is capped at mu_f s j_n (SPEC §5.4): with s = 0 two bodies pressed into each other
+    while sliding exchange no momentum at all (before issue 15 the cap was mu_f j_n)."""
+    domain = Domain((0, 0, 0), (1, 1, 1), 32)
+    spacing = domain.dx / 2
+    material = ElasticMaterial(E=1e4, nu=0.3, density=1.0)
+    lower = lattice_box((0.5, 0.5, 0.4), (0.5, 0.3, 0.1), spacing)
+    upper = lattice_box((0.35, 0.5, 0.5), (0.15, 0.15, 0.1), spacing)   # lying on the lower block
+    bodies = [LatticeBody(lower, (0, 0, 0), 0, spacing), LatticeBody(upper, (1.0, 0, -0.5), 0, spacing)]
+    solver = CollisionMPM(particle_set(bodies, [material.density]), [material], domain,
+                          contact=ContactSettings(strength=0.0, friction=0.5), gravity=(0, 0, 0))
+    before = [o["momentum"] for o in solver.diagnostics()["per_object"]]
+    for _ in range(60):
+        solver.step(solver.stable_dt())
+    after = [o["momentum"] for o in solver.diagnostics()["per_object"]]
+    scale = float(np.abs(before[1]).max())
+    for k in (0, 1):
+        assert float(np.abs(after[k] - before[k]).max()) < 1e-5 * scale, f"object {k} exchanged momentum"

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from fracture_gs.render import Camera, rasterize, rasterize_reference
+from kernel_devices import KERNEL_DEVICES
 from test_raster_scenes import make_camera, random_scene, split
 
 needs_cpp = pytest.mark.extension("raster_forward")  # tests/conftest.py: skipped without _C, failed in CI
@@ -20,9 +21,18 @@ def _config(seed: int) -> dict:
             "exclusive": (seed // 2) % 2 == 1, "view_rotations": seed % 3 == 0}
 
 
-def _render_both(scene: dict, camera: Camera, reference_dtype: torch.dtype = torch.float64):
-    means, opacities, kwargs = split(scene)
-    cpp = rasterize(means, opacities, camera, backend="cpp", **kwargs)
+def _on(scene: dict, device: str) -> dict:
+    return {k: v.to(device) for k, v in scene.items()}
+
+
+def _compiled(scene: dict, camera: Camera, device: str = "cpu") -> dict:
+    """The compiled rasterizer on ``device``; outputs on the CPU."""
+    means, opacities, kwargs = split(_on(scene, device))
+    return {k: v.cpu() for k, v in rasterize(means, opacities, camera, backend="cpp", **kwargs).items()}
+
+
+def _render_both(scene: dict, camera: Camera, reference_dtype: torch.dtype = torch.float64, device: str = "cpu"):
+    cpp = _compiled(scene, camera, device)
     ref_scene = {k: (v.to(reference_dtype) if v.is_floating_point() else v) for k, v in scene.items()}
     means_r, opacities_r, kwargs_r = split(ref_scene)
     ref = rasterize_reference(means_r, opacities_r, camera, **kwargs_r)
@@ -30,12 +40,18 @@ def _render_both(scene: dict, camera: Camera, reference_dtype: torch.dtype = tor
 
 
 @needs_cpp
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
 @pytest.mark.parametrize("seed", range(24))
-def test_forward_matches_reference(seed: int) -> None:
+def test_forward_matches_reference(seed: int, device: str) -> None:
     config = _config(seed)
     scene = random_scene(seed, 80, **config)
     camera = make_camera(WIDTH, HEIGHT, seed)
-    cpp, ref = _render_both(scene, camera)
+    cpp, ref = _render_both(scene, camera, device=device)
+    if device != "cpu":  # the CPU kernel's image is the reference of the CUDA one
+        cpu = _compiled(scene, camera)
+        for key in ("rgb", "alpha", "depth"):
+            assert (cpp[key] - cpu[key]).abs().max().item() <= 1e-4, key
+        assert torch.equal(cpp["radii"], cpu["radii"])
     assert ref["alpha"].max() > 0.5  # the scene is actually visible
     for key in ("rgb", "alpha", "depth"):
         err = (cpp[key].double() - ref[key]).abs().max().item()
@@ -67,17 +83,30 @@ def _gradients(render, scene: dict, camera: Camera, weights) -> dict[str, torch.
     return grads
 
 
+def _compiled_gradients(scene: dict, camera: Camera, weights, device: str) -> dict[str, torch.Tensor]:
+    """Gradients of the compiled rasterizer on ``device`` (on the CPU, float64)."""
+    on_device = _gradients(lambda *a, **k: rasterize(*a, backend="cpp", **k), _on(scene, device), camera,
+                           tuple(w.to(device) for w in weights))
+    return {k: v.cpu() for k, v in on_device.items()}
+
+
 @needs_cpp
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
 @pytest.mark.parametrize("seed", range(10))
-def test_gradients_match_reference(seed: int) -> None:
+def test_gradients_match_reference(seed: int, device: str) -> None:
     config = _config(seed)
     scene = random_scene(100 + seed, 40, **config)
     camera = make_camera(WIDTH, HEIGHT, seed)
     weights = _loss_weights(HEIGHT, WIDTH, seed)
-    cpp = _gradients(lambda *a, **k: rasterize(*a, backend="cpp", **k), scene, camera, weights)
+    cpp = _compiled_gradients(scene, camera, weights, device)
     ref_scene = {k: (v.double() if v.is_floating_point() else v) for k, v in scene.items()}
     ref = _gradients(rasterize_reference, ref_scene, camera, weights)
     assert set(cpp) == set(ref)
+    if device != "cpu":  # the CPU kernel's gradients are the reference of the CUDA ones
+        cpu = _compiled_gradients(scene, camera, weights, "cpu")
+        for name, g_cpu in cpu.items():
+            scale = max(g_cpu.abs().max().item(), 1e-12)
+            assert (cpp[name] - g_cpu).abs().max().item() <= 1e-3 * scale, name
     for name, g_ref in ref.items():
         g_cpp = cpp[name]
         scale = g_ref.abs().max().item()

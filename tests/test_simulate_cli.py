@@ -590,11 +590,11 @@ def _huge_grid_scene() -> dict[str, Any]:
 
 def test_grid_too_large_is_refused_before_allocating(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    """2 objects x 4100³ nodes x 11 float32 fields = 5.5 TiB: named, never allocated."""
+    """2 objects x 4100³ nodes x 13 float32 fields = 6.5 TiB: named, never allocated."""
     scene = write_scene(tmp_path / "huge.yaml", _huge_grid_scene())
     code, stdout, stderr = run_main(["--scene", str(scene), "--out", str(tmp_path / "out"),
                                      "--device", "cpu"], capsys)
-    line = assert_one_line_error(code, stderr, "error: domain.grid: 4096 needs 5.5 TiB of grid "
+    line = assert_one_line_error(code, stderr, "error: domain.grid: 4096 needs 6.5 TiB of grid "
                                  "memory (2 grids of about 4100³ nodes), more than the ")
     assert line.endswith("of free cpu memory; use a coarser grid")
     assert not (tmp_path / "out").exists()
@@ -607,11 +607,12 @@ def test_memory_check_names_the_grid_or_the_primitive() -> None:
     config = parse_scene(tiny_scene())
     grid_bytes, n_grids, nodes = grid_memory_bytes(config)
     # 16 cells + 1 node, padded to blocks of 4: 20³ nodes; mass + momentum + velocity + contact
-    # normal (gradient) + volume = 11 float32 per node and grid (contact fields: 2 objects)
+    # normal (gradient) + volume + position moment = 13 float32 per node and grid (contact
+    # fields: 2 objects)
     assert (n_grids, nodes) == (2, 20 ** 3)
-    assert grid_bytes == 2 * 20 ** 3 * 11 * 4
+    assert grid_bytes == 2 * 20 ** 3 * 13 * 4
     check_scene_memory(config, torch.device("cpu"), available=grid_bytes + 10 ** 6)
-    with pytest.raises(Exception, match=r"^domain\.grid: 16 needs 687\.5 KiB of grid memory"):
+    with pytest.raises(Exception, match=r"^domain\.grid: 16 needs 812\.5 KiB of grid memory"):
         check_scene_memory(config, torch.device("cpu"), available=grid_bytes - 1)
     dense = tiny_scene()
     dense["objects"][1]["primitive"]["particles_per_cell"] = 10 ** 6

@@ -40,8 +40,15 @@ enum MaterialModel : int { kModelElastic = 0, kModelNacc = 1 };
 
 constexpr double kMinSingularValue = 1e-4;  // sigma clamp of the Hencky strain
 constexpr double kNaccP0Floor = 1e-5;       // p0 = K (1e-5 + sinh(xi max(-alpha, 0)))
-constexpr double kNaccYieldTol = 1e-8;      // y > 1e-8 K^2 triggers the projection
-constexpr double kNaccHardenFloor = 1e-4;   // hardening only when p0 > 1e-4 K
+// y > kNaccYieldTol (M p0)^2 triggers the projection: relative to the ellipse's own size, so a
+// particle with p0 at its floor 1e-5 K is still projected and hardened. (SPEC 5.3 wrote 1e-8 K^2
+// and gated hardening on p0 > 1e-4 K: both absolute, and material failing in shear then stopped
+// at alpha ~ -9e-5 / xi, short of the fracture threshold 0. ziran gates on 1e-4 Pa, which is
+// below our floor for any K > 10 Pa.) Hardening is gated relative to p0 only: -beta p0 < p < p0.
+constexpr double kNaccYieldTol = 1e-6;
+
+// The yield tolerance of a state with cohesion p0 and critical-state slope M.
+HOST_DEVICE inline double nacc_yield_tolerance(double p0, double M) { return kNaccYieldTol * (M * p0) * (M * p0); }
 
 namespace constitutive_detail {
 
@@ -159,12 +166,12 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
     tip = true;
   } else {
     const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
-    if (y > kNaccYieldTol * K * K) {
+    if (y > nacc_yield_tolerance(p0, M)) {
       // Here (p + beta p0)(p0 - p) >= 0, so y > 0 implies q > 0; the guard is belt and braces.
       const double q_new = M * sqrt((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta));
       const double scale = (q > 0.0) ? q_new / q : 0.0;
       for (int i = 0; i < 3; ++i) eps_new[i] = e / 3.0 + scale * dev[i];  // volume preserving
-      if (p0 > kNaccHardenFloor * K && -beta * p0 < p && p < p0) {
+      if (-beta * p0 < p && p < p0) {
         // CD-MPM hardening: move alpha as if p went toward the ellipse centre along the ray.
         const double pc = 0.5 * (1.0 - beta) * p0;
         const double half_axis = 0.5 * (1.0 + beta) * p0;

@@ -121,6 +121,7 @@ struct InvariantReturn {
   double alpha;      // new alpha
   double q;          // sqrt(3/2) 2 mu |dev eps| of the trial state
   double y;          // yield function of the trial state
+  double y_tol;      // the state is projected where y > y_tol (nacc_yield_tolerance)
   float projected;   // 1 if the state was projected (a float: GCC 12 cannot vectorise a select on a bool)
   float tip;         // 1 if projected to a tip
 };
@@ -137,7 +138,8 @@ HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const Materia
   const bool tension_tip = !compression_tip & (p < -beta * p0);
   const bool tip = is_nacc & (compression_tip | tension_tip);
   const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
-  const bool ellipse = is_nacc & !tip & (y > kNaccYieldTol * K * K);
+  const double y_tol = nacc_yield_tolerance(p0, M);
+  const bool ellipse = is_nacc & !tip & (y > y_tol);
   const double e_tip = compression_tip ? -p0 / K : beta * p0 / K;
   const double q_new = M * sqrt(fast_math::max_of((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta), 0.0));
   const double scale = q > 0.0 ? q_new / (q > 0.0 ? q : 1.0) : 0.0;
@@ -146,13 +148,14 @@ HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const Materia
   const double half_axis = 0.5 * (1.0 + beta) * p0;
   const double ray = sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
   const double p_final = pc + M * half_axis / (ray > 0.0 ? ray : 1.0) * (p - pc);
-  const bool harden = ellipse & (p0 > kNaccHardenFloor * K) & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
+  const bool harden = ellipse & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
   InvariantReturn r;
   r.alpha = tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : a);
   r.g = tip ? 0.0 : (ellipse ? scale : 1.0);
   r.e_out = tip ? e_tip : e;
   r.q = q;
   r.y = y;
+  r.y_tol = y_tol;
   r.projected = (tip | ellipse) ? 1.f : 0.f;
   r.tip = tip ? 1.f : 0.f;
   return r;
@@ -398,13 +401,13 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
   // The float error of |dev eps| (a few ulp of |eps_iso| <= 1.03 |Y|) moves y by at most dy:
   // closer than that to the threshold, the decision is left to the eigen path.
-  const double mu = m.mu, K = m.bulk, beta = m.beta;
+  const double mu = m.mu, beta = m.beta;
   const double q = ret.q;
   const double dq = 1.2247448713915890491 * 2.0 * mu * (2e-6 * (double)sqrtf(y_norm_sq) + 1e-12);
   const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
   // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or
   // the model is elastic (a double, not a bool: GCC 12 cannot vectorise that mix of conditions).
-  const double decided = fast_math::max_of(fast_math::abs_of(ret.y - kNaccYieldTol * K * K) - dy,
+  const double decided = fast_math::max_of(fast_math::abs_of(ret.y - ret.y_tol) - dy,
                                            (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
   *alpha = (float)ret.alpha;
 

@@ -74,31 +74,74 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
   for (int i = 0; i < 9; ++i) A[i] = mass * C[i] - stress_scale * tau[i];
 }
 
-// Contact between two bodies at one grid node (SPEC §5.4, Bardenhagen's centre-of-mass form).
-// Velocities va, vb are updated in place; returns true if an impulse was applied.
-// ga, gb: mass gradients (sum m_p grad w) of each body at the node, pointing out of that body.
-HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb, const float* ga,
-                                        const float* gb, float strength, float friction) {
-  float na = sqrtf(ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
-  float nb = sqrtf(gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]);
+// ---------------------------------------------------------------------------------------------
+// Contact between two velocity fields at one grid node (SPEC §5.4). Each field is a body (an
+// object grid in collision mode; issue 14 reuses this for the two sides of a crack inside one
+// object) and brings, at the node: its mass, velocity, mass gradient g = sum m_p grad w (points
+// out of the body) and position moment s = sum w m_p (x_p - x_i) (s / m: the body's mass centre
+// seen from the node).
+//
+// Detection (deviation from SPEC §5.4, see docs/design_mpm.md): the bodies are in contact at the
+// node only where their mass centres, taken along the normal, are closer than max_gap:
+//     (s_b / m_b - s_a / m_a) . n < max_gap          (Lemiale et al. 2010, Nairn 2013)
+// Touching thick bodies give about 0.81-0.9 dx there (a half-space's mass centre lies ~0.4 dx
+// behind its surface, seen through the quadratic B-spline), touching one-layer sheets their
+// particle spacing; bodies further apart give more. The rest-volume check it replaces (V_a +
+// V_b >= 0.75 dx^3) never fired for thin or surface-only bodies, which then passed through each
+// other.
+struct ContactParams {
+  float strength;  // s = contact.strength, 0 <= s <= 2
+  float friction;  // Coulomb coefficient mu_f between the bodies
+  float mass_eps;  // nodes with mass <= mass_eps carry no field
+  float max_gap;   // contact where the mass-centre gap along n is below this (length units)
+};
+
+// One body's field at a node.
+struct ContactSide {
+  float mass;
+  float* velocity;                // 3 floats, updated in place
+  const float* mass_gradient;     // 3 floats
+  const float* position_moment;   // 3 floats
+};
+
+// Contact normal n = normalize(g_a / |g_a| - g_b / |g_b|), from a toward b. False where either
+// gradient vanishes or the two cancel (no direction).
+HOST_DEVICE inline bool contact_normal(const float* ga, const float* gb, float n[3]) {
+  const float na = sqrtf(ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
+  const float nb = sqrtf(gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]);
   if (!(na > 0.f) || !(nb > 0.f)) return false;
-  float n[3];
   for (int d = 0; d < 3; ++d) n[d] = ga[d] / na - gb[d] / nb;
-  float nn = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  const float nn = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
   if (!(nn > 1e-6f)) return false;
   for (int d = 0; d < 3; ++d) n[d] /= nn;
-  float vrel[3] = {va[0] - vb[0], va[1] - vb[1], va[2] - vb[2]};
-  float vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2];
+  return true;
+}
+
+// Gap between the two bodies' mass centres at the node along n: (s_b / m_b - s_a / m_a) . n.
+HOST_DEVICE inline float contact_gap(const ContactSide& a, const ContactSide& b, const float n[3]) {
+  float gap = 0.f;
+  for (int d = 0; d < 3; ++d) gap += (b.position_moment[d] / b.mass - a.position_moment[d] / a.mass) * n[d];
+  return gap;
+}
+
+// The impulse of SPEC §5.4 (Bardenhagen's centre-of-mass form) along the unit normal n: applied
+// only while the fields approach, dp_a = -s j_n n - friction, dp_b = -dp_a (momentum is conserved
+// at the node). Friction: j_t = min(mu_f s j_n, m_r |v_t|) against the tangential relative
+// velocity. Returns true if an impulse was applied.
+HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb, const float n[3], float strength,
+                                        float friction) {
+  const float vrel[3] = {va[0] - vb[0], va[1] - vb[1], va[2] - vb[2]};
+  const float vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2];
   if (!(vn > 0.f)) return false;  // separating or resting: no impulse
-  float reduced = ma * mb / (ma + mb);
-  float jn = reduced * vn;
+  const float reduced = ma * mb / (ma + mb);
+  const float jn = reduced * vn;
   float dp[3];
   for (int d = 0; d < 3; ++d) dp[d] = -strength * jn * n[d];
   if (friction > 0.f) {
-    float vt[3] = {vrel[0] - vn * n[0], vrel[1] - vn * n[1], vrel[2] - vn * n[2]};
-    float vt_norm = sqrtf(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
+    const float vt[3] = {vrel[0] - vn * n[0], vrel[1] - vn * n[1], vrel[2] - vn * n[2]};
+    const float vt_norm = sqrtf(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
     if (vt_norm > 1e-12f) {
-      float jt = fminf(friction * jn, reduced * vt_norm);
+      const float jt = fminf(friction * strength * jn, reduced * vt_norm);
       for (int d = 0; d < 3; ++d) dp[d] -= jt * vt[d] / vt_norm;
     }
   }
@@ -109,20 +152,30 @@ HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb
   return true;
 }
 
+// The contact decision and impulse between two fields at one node: both carry mass, the normal
+// is defined, the mass centres are closer than max_gap along it, and the fields approach.
+// Returns true if an impulse was applied.
+HOST_DEVICE inline bool contact_pair(const ContactSide& a, const ContactSide& b, const ContactParams& c) {
+  if (!(a.mass > c.mass_eps) || !(b.mass > c.mass_eps)) return false;
+  float n[3];
+  if (!contact_normal(a.mass_gradient, b.mass_gradient, n)) return false;
+  if (!(contact_gap(a, b, n) < c.max_gap)) return false;
+  return contact_impulse(a.mass, b.mass, a.velocity, b.velocity, n, c.strength, c.friction);
+}
+
 // Contact pass at one node for every pair of object grids, in a fixed order (a < b).
-// node: index within one grid; nodes: nodes per grid. Pairs whose nodal volumes do not fill at
-// least min_volume are not in contact yet (they are only within the kernel's reach).
+// node: index within one grid; nodes: nodes per grid; moment: position moments (3 per node).
 HOST_DEVICE inline void contact_node(long long node, long long nodes, int n_grids, const float* mass,
-                                     float* velocity, const float* mass_gradient, const float* volume,
-                                     float strength, float friction, float mass_eps, float min_volume) {
+                                     float* velocity, const float* mass_gradient, const float* moment,
+                                     const ContactParams& c) {
   for (int a = 0; a < n_grids; ++a) {
     const long long ia = a * nodes + node;
-    if (!(mass[ia] > mass_eps)) continue;
+    if (!(mass[ia] > c.mass_eps)) continue;
+    const ContactSide side_a{mass[ia], velocity + 3 * ia, mass_gradient + 3 * ia, moment + 3 * ia};
     for (int b = a + 1; b < n_grids; ++b) {
       const long long ib = b * nodes + node;
-      if (!(mass[ib] > mass_eps) || volume[ia] + volume[ib] < min_volume) continue;
-      contact_impulse(mass[ia], mass[ib], velocity + 3 * ia, velocity + 3 * ib, mass_gradient + 3 * ia,
-                      mass_gradient + 3 * ib, strength, friction);
+      const ContactSide side_b{mass[ib], velocity + 3 * ib, mass_gradient + 3 * ib, moment + 3 * ib};
+      contact_pair(side_a, side_b, c);
     }
   }
 }

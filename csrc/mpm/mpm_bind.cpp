@@ -52,13 +52,14 @@ Tensor to_tensor(const std::vector<int32_t>& values) {
 }
 
 GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor& velocity,
-                       const std::optional<Tensor>& mass_gradient, const std::optional<Tensor>& volume) {
+                       const std::optional<Tensor>& mass_gradient, const std::optional<Tensor>& position_moment) {
   GridArrays g;
   g.mass = mass.defined() ? mass.data_ptr<float>() : nullptr;
   g.momentum = momentum.defined() ? momentum.data_ptr<float>() : nullptr;
   g.velocity = velocity.defined() ? velocity.data_ptr<float>() : nullptr;
   g.mass_gradient = (mass_gradient.has_value() && mass_gradient->defined()) ? mass_gradient->data_ptr<float>() : nullptr;
-  g.volume = (volume.has_value() && volume->defined()) ? volume->data_ptr<float>() : nullptr;
+  g.position_moment =
+      (position_moment.has_value() && position_moment->defined()) ? position_moment->data_ptr<float>() : nullptr;
   return g;
 }
 
@@ -82,7 +83,7 @@ std::vector<Tensor> bin_particles(const Tensor& x, const Tensor& grid_id, const 
 void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, const Tensor& C, const Tensor& stress,
          const Tensor& mass, const Tensor& rest_volume, const Tensor& grid_id, const std::vector<double>& lower,
          double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt, Tensor grid_mass,
-         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_volume) {
+         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_position_moment) {
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
@@ -99,11 +100,11 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   check_grid(grid_mass, "grid_mass", 1, geo, x);
   check_grid(grid_momentum, "grid_momentum", 3, geo, x);
   if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
-  if (grid_volume) check_grid(*grid_volume, "grid_volume", 1, geo, x);
+  if (grid_position_moment) check_grid(*grid_position_moment, "grid_position_moment", 3, geo, x);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>()};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_volume);
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   Tensor color_start = bins[4].to(torch::kCPU);
   BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
                 bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
@@ -182,23 +183,25 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
 
 void collision(const Tensor& contact_blocks, const std::vector<double>& lower, double dx,
                const std::vector<int64_t>& blocks, int64_t n_grids, double strength, double friction, double mass_eps,
-               double min_volume, Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient,
-               Tensor grid_volume) {
+               double max_gap, Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient,
+               Tensor grid_position_moment) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(contact_blocks, "contact_blocks", torch::kInt32, grid_mass);
   check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
   check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
   check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
-  check_grid(grid_volume, "grid_volume", 1, geo, grid_mass);
-  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient, grid_volume);
+  check_grid(grid_position_moment, "grid_position_moment", 3, geo, grid_mass);
+  TORCH_CHECK(strength >= 0.0 && strength <= 2.0, "contact strength must satisfy 0 <= s <= 2, got ", strength);
+  TORCH_CHECK(friction >= 0.0, "contact friction must be >= 0, got ", friction);
+  const ContactParams params{(float)strength, (float)friction, (float)mass_eps, (float)max_gap};
+  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient, grid_position_moment);
   if (grid_mass.device().is_cpu()) {
-    collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
-                  (float)friction, (float)mass_eps, (float)min_volume, grid);
+    collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
-  collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, (float)strength,
-                 (float)friction, (float)mass_eps, (float)min_volume, grid, current_cuda_stream());
+  collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid,
+                 current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif

@@ -212,10 +212,13 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
 }
 
 // P2G accumulates each cell's particles into a dense window of the 2x2x2 blocks their stencils
-// can reach, one 8-float record per node: [mass, momentum xyz, volume, mass gradient xyz]. A
-// node update is then three 8-wide multiply-adds; the window (16 KB) stays in L1 and is added
-// to the grid fields once per cell.
+// can reach, one 8-float record per node: [mass, momentum xyz, position moment xyz, 0] (the
+// position moment sum w m (x_p - x_i) has the same form as the APIC term A (x_i - x_p), so it
+// rides in the same multiply-adds). A node update is then three 8-wide multiply-adds; the window
+// (16 KB) stays in L1 and is added to the grid fields once per cell. Cells next to a contact
+// block also fill a second window of 4-float records with the mass gradient.
 using Record = float __attribute__((vector_size(32)));  // GCC vector: AVX, or two SSE halves
+using Lane4 = float __attribute__((vector_size(16)));
 constexpr int kWindow = 2 * kBlock;                        // window nodes per axis
 constexpr int kWindowNodes = kWindow * kWindow * kWindow;
 
@@ -238,12 +241,13 @@ inline void prefetch_particle(const ParticleArrays& p, int q) {
 }
 
 // Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
-// the window's first node. kWithContact: also the mass gradient (record lanes 5-7), which only
-// the contact pass reads; without it those lanes stay zero.
+// the window's first node. kWithContact: also the mass gradient into `gradient_window` (zeroed
+// here; lanes 0-2), which only the contact pass reads.
 template <bool kWithContact>
 void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                     const int origin[3], Record* FGS_RESTRICT window) {
+                     const int origin[3], Record* FGS_RESTRICT window, Lane4* FGS_RESTRICT gradient_window) {
   std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
+  if constexpr (kWithContact) std::memset(static_cast<void*>(gradient_window), 0, sizeof(Lane4) * kWindowNodes);
   const float dx = geo.dx;
   const int end = bins.cell_start[cell + 1];
   for (int it = bins.cell_start[cell]; it < end; ++it) {
@@ -255,32 +259,32 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
     // Per-particle record directions; a node's record is a combination of them with weights.
-    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], p.rest_volume[q], 0.f, 0.f, 0.f};
-    const Record affine_x = {0.f, A[0], A[3], A[6], 0.f, 0.f, 0.f, 0.f};  // momentum per unit x offset
-    const Record affine_y = {0.f, A[1], A[4], A[7], 0.f, 0.f, 0.f, 0.f};
-    const Record affine_z = {0.f, A[2], A[5], A[8], 0.f, 0.f, 0.f, 0.f};
-    const Record gradient_x = {0.f, 0.f, 0.f, 0.f, 0.f, m, 0.f, 0.f};
-    const Record gradient_y = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, m, 0.f};
-    const Record gradient_z = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, m};
+    // Per unit offset x_i - x_p: momentum A (x_i - x_p), position moment -m (x_i - x_p).
+    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], 0.f, 0.f, 0.f, 0.f};
+    const Record affine_x = {0.f, A[0], A[3], A[6], -m, 0.f, 0.f, 0.f};
+    const Record affine_y = {0.f, A[1], A[4], A[7], 0.f, -m, 0.f, 0.f};
+    const Record affine_z = {0.f, A[2], A[5], A[8], 0.f, 0.f, -m, 0.f};
     const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
     for (int a = 0; a < 3; ++a) {
       const float px = ((float)a - aw[0].f) * dx;
       for (int b = 0; b < 3; ++b) {
         const float py = ((float)b - aw[1].f) * dx;
         const float wab = aw[0].w[a] * aw[1].w[b];
-        // Record of node (a, b, c) = wz_c * in_plane + wz_c pz_c * along + dwz_c * wab gradient_z.
-        Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
-        if constexpr (kWithContact)
-          in_plane += (aw[0].dw[a] * aw[1].w[b]) * gradient_x + (aw[0].w[a] * aw[1].dw[b]) * gradient_y;
+        // Record of node (a, b, c) = wz_c * in_plane + wz_c pz_c * along.
+        const Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
         const Record along = wab * affine_z;
-        const Record normal = wab * gradient_z;
-        Record* row = window + ((lx + a) * kWindow + (ly + b)) * kWindow + lz;
+        const int row_offset = ((lx + a) * kWindow + (ly + b)) * kWindow + lz;
+        Record* row = window + row_offset;
         for (int c = 0; c < 3; ++c) {
           const float pz = ((float)c - aw[2].f) * dx;
-          if constexpr (kWithContact)
-            row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along + aw[2].dw[c] * normal;
-          else
-            row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along;
+          row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along;
+        }
+        if constexpr (kWithContact) {
+          // Mass gradient of node (a, b, c) = wz_c * (m dwx wy, m wx dwy, 0) + dwz_c * (0, 0, m wx wy).
+          const Lane4 gradient_in_plane = {m * aw[0].dw[a] * aw[1].w[b], m * aw[0].w[a] * aw[1].dw[b], 0.f, 0.f};
+          const Lane4 gradient_along = {0.f, 0.f, m * wab, 0.f};
+          Lane4* gradient_row = gradient_window + row_offset;
+          for (int c = 0; c < 3; ++c) gradient_row[c] += aw[2].w[c] * gradient_in_plane + aw[2].dw[c] * gradient_along;
         }
       }
     }
@@ -288,11 +292,12 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
 }
 
 // Adds a cell's window into the grid fields of its object (blocks outside the grid are skipped:
-// no stencil reaches them, so their records are zero). Volume and mass gradient go only to
-// contact blocks (contact[block] != 0; none if contact is nullptr).
-void p2g_flush_window(const Record* FGS_RESTRICT window, const int block_ijk[3], const GridShape& s,
-                      const uint8_t* contact, float* FGS_RESTRICT mass, float* FGS_RESTRICT momentum,
-                      float* FGS_RESTRICT gradient, float* FGS_RESTRICT volume) {
+// no stencil reaches them, so their records are zero). Position moment and mass gradient go only
+// to contact blocks (contact[block] != 0; none if contact is nullptr); gradient_window is read
+// only there.
+void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRICT gradient_window,
+                      const int block_ijk[3], const GridShape& s, const uint8_t* contact, float* FGS_RESTRICT mass,
+                      float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient, float* FGS_RESTRICT moment) {
   for (int di = 0; di < 2; ++di)
     for (int dj = 0; dj < 2; ++dj)
       for (int dk = 0; dk < 2; ++dk) {
@@ -303,16 +308,20 @@ void p2g_flush_window(const Record* FGS_RESTRICT window, const int block_ijk[3],
         const long long first = (long long)block * kBlockNodes;
         for (int li = 0; li < kBlock; ++li)
           for (int lj = 0; lj < kBlock; ++lj) {
-            const Record* src = window + ((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock;
+            const int src_offset = ((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock;
+            const Record* src = window + src_offset;
             const long long dst = first + (li * kBlock + lj) * kBlock;
             for (int lk = 0; lk < kBlock; ++lk) {
               const Record r = src[lk];
               const long long idx = dst + lk;
               mass[idx] += r[0];
               for (int d = 0; d < 3; ++d) momentum[3 * idx + d] += r[1 + d];
-              if (with_contact && volume) volume[idx] += r[4];
-              if (with_contact && gradient)
-                for (int d = 0; d < 3; ++d) gradient[3 * idx + d] += r[5 + d];
+              if (with_contact && moment)
+                for (int d = 0; d < 3; ++d) moment[3 * idx + d] += r[4 + d];
+              if (with_contact && gradient) {
+                const Lane4 g = gradient_window[src_offset + lk];
+                for (int d = 0; d < 3; ++d) gradient[3 * idx + d] += g[d];
+              }
             }
           }
       }
@@ -333,13 +342,13 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
     std::memset(grid.mass + first, 0, sizeof(float) * kBlockNodes);
     std::memset(grid.momentum + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
     if (grid.mass_gradient) std::memset(grid.mass_gradient + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
-    if (grid.volume) std::memset(grid.volume + first, 0, sizeof(float) * kBlockNodes);
+    if (grid.position_moment) std::memset(grid.position_moment + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
   }
-  // Contact blocks (block ids touched by two grids): only there does P2G add the nodal volume
+  // Contact blocks (block ids touched by two grids): only there does P2G add the position moment
   // and the mass gradient, the contact pass's inputs; a cell computes the gradient only if its
   // window (2x2x2 blocks) contains one.
   std::vector<uint8_t> contact_flag;
-  if ((grid.mass_gradient || grid.volume) && bins.n_contact > 0) {
+  if ((grid.mass_gradient || grid.position_moment) && bins.n_contact > 0) {
     contact_flag.assign(n_blocks, 0);
     for (int i = 0; i < bins.n_contact; ++i) contact_flag[bins.contact_blocks[i]] = 1;
   }
@@ -347,6 +356,7 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
 #pragma omp parallel
   {
     std::vector<Record> window(kWindowNodes);  // per thread
+    std::vector<Lane4> gradient_window(contact ? kWindowNodes : 0);
     for (int color = 0; color < 8; ++color) {
       const int c_begin = bins.color_start[color], c_end = bins.color_start[color + 1];
 #pragma omp for schedule(dynamic, 2)
@@ -364,13 +374,14 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
                 if (bi < s.bx && bj < s.by && bk < s.bz) near_contact |= contact[(bi * s.by + bj) * s.bz + bk] != 0;
               }
         if (near_contact)
-          p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data());
+          p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data(), gradient_window.data());
         else
-          p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data());
+          p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data(), nullptr);
         const long long grid_offset = (long long)grid_index * nodes;
-        p2g_flush_window(window.data(), block_ijk, s, contact, grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
+        p2g_flush_window(window.data(), gradient_window.data(), block_ijk, s, near_contact ? contact : nullptr,
+                         grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
                          grid.mass_gradient ? grid.mass_gradient + 3 * grid_offset : nullptr,
-                         grid.volume ? grid.volume + grid_offset : nullptr);
+                         grid.position_moment ? grid.position_moment + 3 * grid_offset : nullptr);
       }
     }
   }
@@ -407,15 +418,15 @@ void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& ge
   }
 }
 
-void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                   float strength, float friction, float mass_eps, float min_volume, GridArrays grid) {
+void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, const ContactParams& params,
+                   GridArrays grid) {
   const long long nodes = geo.shape.nodes();
 #pragma omp parallel for schedule(static)
   for (int t = 0; t < n_contact; ++t) {
     const long long first = (long long)contact_blocks[t] * kBlockNodes;
     for (long long node = first; node < first + kBlockNodes; ++node)
-      contact_node(node, nodes, geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient, grid.volume, strength,
-                   friction, mass_eps, min_volume);
+      contact_node(node, nodes, geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient, grid.position_moment,
+                   params);
   }
 }
 
@@ -427,8 +438,6 @@ inline bool finite_sum9(const float a[9]) {
                   ((a[4] * 0.f + a[5] * 0.f) + (a[6] * 0.f + a[7] * 0.f)) + a[8] * 0.f;
   return s == 0.f;
 }
-
-using Lane4 = float __attribute__((vector_size(16)));
 
 // g2p_gather (csrc/common/mpm_transfer.h) with the node velocities as 4-wide vectors: per node
 // two vector multiply-adds (sums along z), per (x, y) column four, instead of twelve scalar

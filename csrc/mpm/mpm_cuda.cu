@@ -27,7 +27,6 @@ struct StagedParticle {
   float dw[3][3];
   float f[3];
   float mass;
-  float volume;
   float mv[3];
   float A[9];
 };
@@ -42,7 +41,8 @@ __global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long l
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] = 0.f;
   if (grid.mass_gradient)
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] = 0.f;
-  if (grid.volume) grid.volume[idx] = 0.f;
+  if (grid.position_moment)
+    for (int d = 0; d < 3; ++d) grid.position_moment[3 * idx + d] = 0.f;
 }
 
 __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
@@ -56,7 +56,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
   const int t = threadIdx.x;
   const int node[3] = {origin[0] + t / (kTile * kTile), origin[1] + (t / kTile) % kTile, origin[2] + t % kTile};
-  float mass = 0.f, volume = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f};
+  float mass = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f}, moment[3] = {0.f, 0.f, 0.f};
   bool reached = false;
   const int first = bins.cell_start[cell], last = bins.cell_start[cell + 1];
   for (int chunk = first; chunk < last; chunk += kChunk) {
@@ -75,7 +75,6 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         }
       }
       sp.mass = p.mass[q];
-      sp.volume = p.rest_volume[q];
       for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
       apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
     }
@@ -90,7 +89,9 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         const float px = ((float)a - sp.f[0]) * geo.dx, py = ((float)b - sp.f[1]) * geo.dx,
                     pz = ((float)c - sp.f[2]) * geo.dx;
         mass += w * sp.mass;
-        volume += w * sp.volume;
+        moment[0] -= w * sp.mass * px;  // sum w m (x_p - x_i)
+        moment[1] -= w * sp.mass * py;
+        moment[2] -= w * sp.mass * pz;
         for (int d = 0; d < 3; ++d)
           momentum[d] += w * (sp.mv[d] + sp.A[3 * d] * px + sp.A[3 * d + 1] * py + sp.A[3 * d + 2] * pz);
         gradient[0] += sp.mass * sp.dw[0][a] * sp.w[1][b] * sp.w[2][c];
@@ -106,7 +107,8 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] += momentum[d];
   if (grid.mass_gradient)
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] += gradient[d];
-  if (grid.volume) grid.volume[idx] += volume;
+  if (grid.position_moment)
+    for (int d = 0; d < 3; ++d) grid.position_moment[3 * idx + d] += moment[d];
 }
 
 __global__ void grid_update_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, float dt, float gx,
@@ -135,13 +137,13 @@ __global__ void boundaries_kernel(const int32_t* touched, int n_touched, MPMGeom
   apply_boundary(ijk, bc, grid.velocity + 3 * idx);
 }
 
-__global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, MPMGeometry geo, float strength,
-                                 float friction, float mass_eps, float min_volume, GridArrays grid) {
+__global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, MPMGeometry geo, ContactParams params,
+                                 GridArrays grid) {
   long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_contact * kBlockNodes) return;
   const long long node = (long long)contact_blocks[t / kBlockNodes] * kBlockNodes + t % kBlockNodes;
-  contact_node(node, geo.shape.nodes(), geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient, grid.volume,
-               strength, friction, mass_eps, min_volume);
+  contact_node(node, geo.shape.nodes(), geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient,
+               grid.position_moment, params);
 }
 
 // Integer atomics only: a count, a minimum index, and the maximum of a non-negative float through
@@ -188,11 +190,11 @@ void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& g
       touched, n_touched, geo, bc, mass_eps, grid);
 }
 
-void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, float strength,
-                    float friction, float mass_eps, float min_volume, GridArrays grid, void* stream) {
+void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, const ContactParams& params,
+                    GridArrays grid, void* stream) {
   if (n_contact == 0) return;
   collision_kernel<<<blocks_for((long long)n_contact * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
-      contact_blocks, n_contact, geo, strength, friction, mass_eps, min_volume, grid);
+      contact_blocks, n_contact, geo, params, grid);
 }
 
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* grid_velocity,

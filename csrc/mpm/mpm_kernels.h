@@ -52,7 +52,7 @@ struct GridArrays {  // n_grids * nodes rows each
   float* momentum;       // (.., 3)
   float* velocity;       // (.., 3)
   float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed (CPU P2G: contact blocks only)
-  float* volume;         // (..) nodal volume sum w V0, or nullptr (only for contact; CPU P2G: contact blocks only)
+  float* position_moment;  // (.., 3) sum w m (x_p - x_i), or nullptr (only for contact; CPU P2G: contact blocks only)
 };
 
 // Returns -1 on success or the index of a particle whose stencil leaves the grid.
@@ -64,10 +64,9 @@ void grid_update_cpu(const int32_t* touched, int n_touched, const MPMGeometry& g
                      const float* gravity, float mass_eps, GridArrays grid);
 void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                     const BoundaryParams& bc, float mass_eps, GridArrays grid);
-// min_volume: a node is a contact only if the two bodies' nodal volumes add up to at least this
-// (Nairn's volume check; stops contact from acting across a gap, a cell before bodies touch).
-void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                   float strength, float friction, float mass_eps, float min_volume, GridArrays grid);
+// Contact impulses at the nodes of the contact blocks (contact_node, csrc/common/mpm_math.h).
+void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, const ContactParams& params,
+                   GridArrays grid);
 G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
                  const float* grid_velocity, G2POutputs out);
 
@@ -80,8 +79,7 @@ void grid_update_cuda(const int32_t* touched, int n_touched, const MPMGeometry& 
 void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                      const BoundaryParams& bc, float mass_eps, GridArrays grid, void* stream);
 void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo,
-                    float strength, float friction, float mass_eps, float min_volume, GridArrays grid,
-                    void* stream);
+                    const ContactParams& params, GridArrays grid, void* stream);
 // stats: device int64[3] = {clamped, first_nonfinite, bits of max |v|^2}, initialised by the
 // caller to {0, INT64_MAX, 0}.
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,

@@ -477,7 +477,8 @@ def _parse_contact(value: Any) -> ContactConfig:
     data = _mapping(value, "contact")
     _check_keys(data, "contact", ("mode", "strength", "friction"))
     return ContactConfig(mode=_choice(data, "mode", "contact", CONTACT_MODES, "collision"),
-                         strength=_number(data, "strength", "contact", 1.0, ge=0.0),
+                         # s > 2 leaves (1 - s) v_n with |1 - s| > 1: the impulse would add energy.
+                         strength=_number(data, "strength", "contact", 1.0, ge=0.0, le=2.0),
                          friction=_number(data, "friction", "contact", 0.0, ge=0.0))
 
 

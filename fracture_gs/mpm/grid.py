@@ -80,8 +80,8 @@ class GridFields:
     velocity: torch.Tensor
     # With contact only. The contact pass reads them on contact blocks (block ids touched by two
     # grids) only, and the compiled CPU P2G sums them there only (zero elsewhere).
-    mass_gradient: torch.Tensor | None  # Σ m_p ∇w: contact normals
-    volume: torch.Tensor | None         # Σ w V0_p: contact detection
+    mass_gradient: torch.Tensor | None    # Σ m_p ∇w: contact normals
+    position_moment: torch.Tensor | None  # Σ w m_p (x_p − x_i): mass centre seen from the node, × mass
 
     @staticmethod
     def zeros(geometry: GridGeometry, device: torch.device, with_contact: bool) -> "GridFields":
@@ -91,7 +91,7 @@ class GridFields:
             momentum=torch.zeros(shape + (3,), device=device),
             velocity=torch.zeros(shape + (3,), device=device),
             mass_gradient=torch.zeros(shape + (3,), device=device) if with_contact else None,
-            volume=torch.zeros(shape, device=device) if with_contact else None)
+            position_moment=torch.zeros(shape + (3,), device=device) if with_contact else None)
 
 
 @dataclass

@@ -32,8 +32,10 @@ COLUMN = {name: index for index, name in enumerate(TABLE_COLUMNS)}
 
 MIN_SINGULAR_VALUE = 1e-4   # σ clamp of the Hencky strain
 P0_FLOOR = 1e-5             # p0 = K (1e-5 + sinh(ξ max(-α, 0)))
-YIELD_TOLERANCE = 1e-8      # project when y > 1e-8 K²
-HARDENING_FLOOR = 1e-4      # harden only while p0 > 1e-4 K
+# Project when y > 1e-6 M² p0²: relative to the ellipse's own size, so a cohesionless particle
+# (p0 at its floor) is still projected and hardened (SPEC §5.3 wrote 1e-8 K² and gated hardening
+# on p0 > 1e-4 K: both absolute, and shear failure then stopped short of α = 0).
+YIELD_TOLERANCE = 1e-6
 
 
 # ----------------------------------------------------------------------------- parameters
@@ -157,13 +159,14 @@ def nacc_return_map_strain(strain: torch.Tensor, alpha: torch.Tensor, mu: torch.
     e_tip = torch.where(compression_tip, -p0 / bulk, beta * p0 / bulk)
 
     y = (1.0 + 2.0 * beta) * q**2 + M**2 * (p + beta * p0) * (p - p0)
-    yielding = ~tip & (y > YIELD_TOLERANCE * bulk**2)
+    yielding = ~tip & (y > YIELD_TOLERANCE * (M * p0) ** 2)
     q_new = M * torch.sqrt(((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta)).clamp_min(0.0))
     shrink = torch.where(q > 0, q_new / q.clamp_min(torch.finfo(q.dtype).tiny), 0.0)
     strain_projected = e[..., None] / 3.0 + shrink[..., None] * deviatoric  # keeps tr ε
 
-    # CD-MPM hardening: α moves as if p went toward the ellipse centre along the ray.
-    hardening = yielding & (p0 > HARDENING_FLOOR * bulk) & (-beta * p0 < p) & (p < p0)
+    # CD-MPM hardening: α moves as if p went toward the ellipse centre along the ray. The gate is
+    # relative to p0 only (p strictly between the tips); p0 >= 1e-5 K keeps the ray well defined.
+    hardening = yielding & (-beta * p0 < p) & (p < p0)
     centre = 0.5 * (1.0 - beta) * p0
     half_axis = 0.5 * (1.0 + beta) * p0
     t = M * half_axis / torch.sqrt((1.0 + 2.0 * beta) * q**2 + M**2 * (p - centre) ** 2)

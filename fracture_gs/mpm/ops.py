@@ -27,15 +27,16 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
         dt: float, grid: GridFields, backend: str = "auto") -> None:
-    """Particle-to-grid transfer into ``grid`` (mass, momentum; mass gradient and volume for contact).
+    """Particle-to-grid transfer into ``grid`` (mass, momentum; mass gradient and position moment for
+    contact).
 
-    The compiled CPU kernel sums mass gradient and volume on contact blocks only (the contact
-    pass reads nothing else); the torch reference and CUDA fill them everywhere.
+    The compiled CPU kernel sums mass gradient and position moment on contact blocks only (the
+    contact pass reads nothing else); the torch reference and CUDA fill them everywhere.
     """
     if use_compiled(x.device, backend):
         compiled_module().mpm_p2g(bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id,
                                   *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient,
-                                  grid.volume)
+                                  grid.position_moment)
     else:
         reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid)
 
@@ -63,13 +64,14 @@ def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, 
 
 
 def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, friction: float, mass_eps: float,
-              min_volume: float, grid: GridFields, backend: str = "auto") -> None:
-    """Contact impulses between object grids (SPEC §5.4) where the bodies' nodal volumes touch."""
+              max_gap: float, grid: GridFields, backend: str = "auto") -> None:
+    """Contact impulses between object grids (SPEC §5.4) where the bodies' mass centres at a node are
+    closer than ``max_gap`` (a length) along the contact normal."""
     if use_compiled(grid.mass.device, backend):
         compiled_module().mpm_collision(bins.contact_blocks, *geometry.args(), strength, friction, mass_eps,
-                                        min_volume, grid.mass, grid.velocity, grid.mass_gradient, grid.volume)
+                                        max_gap, grid.mass, grid.velocity, grid.mass_gradient, grid.position_moment)
     else:
-        reference.collision(grid, strength, friction, mass_eps, min_volume)
+        reference.collision(grid, strength, friction, mass_eps, max_gap)
 
 
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,

@@ -104,9 +104,10 @@ def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         grid.mass_gradient.zero_()
         grid.mass_gradient.view(-1, 3).index_add_(0, index.flatten(),
                                                   (gradient * mass[:, None, None]).reshape(-1, 3))
-    if grid.volume is not None:
-        grid.volume.zero_()
-        grid.volume.view(-1).index_add_(0, index.flatten(), (weight * rest_volume[:, None]).flatten())
+    if grid.position_moment is not None:
+        grid.position_moment.zero_()
+        moment = -(weight * mass[:, None])[..., None] * dpos   # w m (x_p − x_i)
+        grid.position_moment.view(-1, 3).index_add_(0, index.flatten(), moment.reshape(-1, 3))
 
 
 def grid_update(grid: GridFields, dt: float, gravity: torch.Tensor, mass_eps: float) -> None:
@@ -150,13 +151,14 @@ def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, gr
     grid.velocity.copy_(torch.where((grid.mass > mass_eps)[..., None], new_v, velocity))
 
 
-def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, min_volume: float) -> None:
+def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, max_gap: float) -> None:
     """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4).
 
-    A node is a contact only where both bodies have mass and their nodal volumes add up to at
-    least ``min_volume`` (a gap of more than a fraction of a cell means not touching yet).
+    A node is a contact only where both bodies have mass, the normal n = normalize(ĝa − ĝb) is
+    defined and the bodies' mass centres at the node, s_k / m_k, are closer than ``max_gap``
+    along n (a length); the impulse is applied only while they approach.
     """
-    assert grid.mass_gradient is not None and grid.volume is not None, "collision needs contact fields"
+    assert grid.mass_gradient is not None and grid.position_moment is not None, "collision needs contact fields"
     n_grids = grid.mass.shape[0]
     for a in range(n_grids):
         for b in range(a + 1, n_grids):
@@ -164,21 +166,23 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
             va, vb = grid.velocity[a], grid.velocity[b]
             ga, gb = grid.mass_gradient[a], grid.mass_gradient[b]
             na, nb = ga.norm(dim=-1, keepdim=True), gb.norm(dim=-1, keepdim=True)
-            both = ((ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
-                    & (grid.volume[a] + grid.volume[b] >= min_volume))
+            both = (ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
             normal = ga / na.clamp_min(1e-30) - gb / nb.clamp_min(1e-30)
             normal_len = normal.norm(dim=-1, keepdim=True)
             normal = normal / normal_len.clamp_min(1e-30)
+            centre_a = grid.position_moment[a] / torch.where(both, ma, torch.ones_like(ma))[:, None]
+            centre_b = grid.position_moment[b] / torch.where(both, mb, torch.ones_like(mb))[:, None]
+            gap = ((centre_b - centre_a) * normal).sum(-1)
             vrel = va - vb
             vn = (vrel * normal).sum(-1, keepdim=True)
-            active = both & (normal_len[:, 0] > 1e-6) & (vn[:, 0] > 0)
+            active = both & (normal_len[:, 0] > 1e-6) & (gap < max_gap) & (vn[:, 0] > 0)
             reduced = (ma * mb / (ma + mb).clamp_min(1e-30))[:, None]
             jn = reduced * vn
             impulse = -strength * jn * normal
             if friction > 0:
                 vt = vrel - vn * normal
                 vt_norm = vt.norm(dim=-1, keepdim=True)
-                jt = torch.minimum(friction * jn, reduced * vt_norm)
+                jt = torch.minimum(friction * strength * jn, reduced * vt_norm)
                 impulse = impulse - torch.where(vt_norm > 1e-12, jt * vt / vt_norm.clamp_min(1e-30),
                                                 torch.zeros_like(vt))
             impulse = torch.where(active[:, None], impulse, torch.zeros_like(impulse))

@@ -22,10 +22,6 @@ from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundB
                                    SimulationBlowUp, StepStats)
 
 STATE_KEYS = ("x", "v", "C", "F_E", "alpha", "fractured", "stress")
-# Two bodies are in contact at a node once their nodal volumes fill this fraction of a cell
-# (Nairn's volume check). Without it the contact pass acts about a cell before the bodies touch,
-# and at corners its normal tilts, so tangential motion reads as approach and is braked.
-CONTACT_VOLUME_FRACTION = 0.75
 
 
 class CollisionMPM:
@@ -77,7 +73,7 @@ class CollisionMPM:
         self.grid_id = self._grid_ids(self.particles)
         self.use_contact = collision_mode and self.n_grids >= 2
         self.grid = GridFields.zeros(self.geometry, self.device, with_contact=self.use_contact)
-        self.min_contact_volume = CONTACT_VOLUME_FRACTION * self.geometry.dx ** 3
+        self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
         self.state = self._initial_state(table)
         # Bins of the latest substep (diagnostics; `order` indexes the particle order of that substep).
@@ -131,12 +127,12 @@ class CollisionMPM:
         ops.grid_update(bins, geo, dt, self.gravity, self.mass_eps, g, backend)
         if self.use_contact:
             ops.collision(bins, geo, self.contact.strength, self.contact.friction, self.mass_eps,
-                          self.min_contact_volume, g, backend)
+                          self.max_contact_gap, g, backend)
         ops.boundaries(bins, geo, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps,
                        g, backend)
         x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
             s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend)
-        self._check(stats, dt)
+        self._check(stats, v, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -168,16 +164,23 @@ class CollisionMPM:
         where[self.input_index] = torch.arange(len(where), device=where.device)
         return self.state.take(where)
 
-    def _check(self, stats: G2PStats, dt: float) -> None:
-        """Refuse a substep whose result is non-finite or implausibly fast (state not committed)."""
+    def _check(self, stats: G2PStats, v: torch.Tensor, dt: float) -> None:
+        """Refuse a substep whose result is non-finite or moves a particle more than one cell
+        (the state is not committed, so the frames written so far stay valid)."""
         where = f"t={self.state.time + dt:.6g}s (step {self.state.step + 1})"
         if stats.first_nonfinite >= 0:
             particle = int(self.input_index[stats.first_nonfinite])  # as numbered in the input
             raise SimulationBlowUp(f"{where}: non-finite position, velocity or deformation gradient at particle "
                                    f"{particle}; try a smaller cfl or a finer grid")
-        if stats.max_speed * dt > self.domain.size:
-            raise SimulationBlowUp(f"{where}: speed {stats.max_speed:.3g} crosses the domain in one step; "
-                                   f"try a smaller cfl")
+        if stats.max_speed * dt > self.geometry.dx:
+            # CFL keeps |v| dt to cfl * dx at the step's start: a particle that now crosses more than
+            # a cell in one substep was accelerated beyond anything the time step resolves.
+            speed = torch.linalg.vector_norm(v, dim=1)
+            fastest = int(torch.argmax(torch.where(torch.isfinite(speed), speed, torch.zeros_like(speed))))
+            particle = int(self.input_index[fastest])
+            cells = stats.max_speed * dt / self.geometry.dx
+            raise SimulationBlowUp(f"{where}: particle {particle} would move {cells:.3g} cells in one substep "
+                                   f"(speed {stats.max_speed:.3g}); try a smaller cfl or a finer grid")
 
     def advance(self, duration: float) -> StepStats:
         """Run substeps with the adaptive CFL step until ``duration`` seconds have passed."""

@@ -8,6 +8,7 @@ from typing import Literal
 import torch
 
 BLOCK = 4  # grid block edge in nodes; grids are padded to a multiple of it
+CONTACT_GAP_CELLS = 0.9  # default ContactSettings.max_gap (see docs/design_mpm.md, contact detection)
 
 
 class SimulationBlowUp(RuntimeError):
@@ -43,8 +44,24 @@ class ContactSettings:
     """How objects touch: per-object grids + contact impulse, or one shared grid (baseline)."""
 
     mode: Literal["collision", "mls"] = "collision"
-    strength: float = 1.0   # the paper's μ scaling of the normal impulse
-    friction: float = 0.0   # Coulomb coefficient between objects
+    strength: float = 1.0   # the paper's μ scaling of the normal impulse, 0 <= s <= 2
+    friction: float = 0.0   # Coulomb coefficient between objects (tangential cap μ_f · s · j_n)
+    # Contact detection, in cells: a node is a contact only where the two bodies' mass centres seen
+    # from it are closer than this along the normal (touching solid bodies: 0.81-0.9 dx; touching
+    # one-layer sheets: their particle spacing). math.inf: every node where both bodies have mass
+    # (SPEC §5.4 as written, which acts across a gap; kept to measure that).
+    max_gap: float = CONTACT_GAP_CELLS
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("collision", "mls"):
+            raise ValueError(f"contact mode must be 'collision' or 'mls', got {self.mode!r}")
+        # The impulse leaves (1 - s) of the normal approach speed: beyond 2 it would add energy.
+        if not 0.0 <= float(self.strength) <= 2.0:
+            raise ValueError(f"contact strength must satisfy 0 <= s <= 2, got {self.strength}")
+        if not 0.0 <= float(self.friction) < math.inf:
+            raise ValueError(f"contact friction must be a finite number >= 0, got {self.friction}")
+        if not float(self.max_gap) > 0.0:
+            raise ValueError(f"contact max_gap must be > 0 (in cells), got {self.max_gap}")
 
 
 @dataclass
