@@ -1,0 +1,1 @@
+"""Image and reconstruction quality metrics."""
