@@ -144,6 +144,25 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path: Path) -> Non
     assert not list(interrupted.glob("chkpnt*.pth"))
 
 
+def test_from_sdf_reuses_the_geometry_of_an_earlier_run(trained: Path, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture) -> None:
+    refit = tmp_path / "refit"
+    assert _run(["-s", FIXTURE, "-m", refit, "--from-sdf", trained / "sdf.npz", *TINY]) == 0
+    timings = json.loads((refit / "timings.json").read_text())
+    assert "sdf_refinement" not in timings["timings"] and "visual_hull" not in timings["timings"]
+    assert timings["from_sdf"] == str(trained / "sdf.npz")
+    before = trimesh.load(str(trained / "mesh.ply"), process=False)
+    after = trimesh.load(str(refit / "mesh.ply"), process=False)
+    assert np.array_equal(before.vertices, after.vertices)
+    assert timings["hull_volume"] == pytest.approx(
+        json.loads((trained / "timings.json").read_text())["hull_volume"])
+    broken = tmp_path / "broken.npz"
+    np.savez(broken, sdf=np.zeros((4, 4)))
+    out = tmp_path / "out"
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, "--from-sdf", broken, *TINY], out,
+                        "--from-sdf", str(broken), "not an sdf.npz")
+
+
 def _original_3dgs_ply(path: Path, points: np.ndarray, seed: int = 0) -> GaussianModel:
     """Anisotropic SH-3 Gaussians as the original 3DGS writes them."""
     generator = torch.Generator().manual_seed(seed)

@@ -64,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "largest (default 0.005)")
     parser.add_argument("--from-ply", default=None,
                         help="import a trained 3DGS point_cloud.ply instead of fitting Gaussians")
+    parser.add_argument("--from-sdf", default=None,
+                        help="reuse the sdf.npz of an earlier run (skips the visual hull, "
+                             "carving and SDF refinement; e.g. to refit the Gaussians)")
     parser.add_argument("--bbox", type=float, nargs=6, default=None,
                         metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
                         help="object box for the opacity-field SDF (--from-ply without masks)")
@@ -99,6 +102,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
                        sh_degree=args.sh_degree, device=args.device, seed=args.seed,
                        preset=args.preset, min_component=args.min_component,
                        max_offset=args.max_offset, from_ply=args.from_ply,
+                       from_sdf=args.from_sdf,
                        bbox=list(args.bbox) if args.bbox is not None else None,
                        start_checkpoint=args.start_checkpoint,
                        checkpoint_every=args.checkpoint_every,

@@ -204,6 +204,21 @@ def write_sdf(path: str, sdf: torch.Tensor, hull_sdf: torch.Tensor, origin: tupl
                                 voxel=np.float64(voxel))
 
 
+def read_sdf(path: str) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float], float]:
+    """``sdf``, ``hull_sdf``, grid origin and voxel edge of an ``sdf.npz`` written by
+    :func:`write_sdf`; a ``ValueError`` naming what is wrong otherwise."""
+    try:
+        with np.load(path) as content:
+            sdf, hull_sdf = content["sdf"], content["hull_sdf"]
+            origin, voxel = content["origin"], float(content["voxel"])
+    except (OSError, KeyError, ValueError) as error:
+        raise ValueError(f"not an sdf.npz of train.py ({type(error).__name__}: {error})") from None
+    if sdf.ndim != 3 or hull_sdf.shape != sdf.shape or origin.shape != (3,) or not voxel > 0:
+        raise ValueError(f"inconsistent sdf.npz (sdf {sdf.shape}, hull_sdf {hull_sdf.shape}, "
+                         f"origin {origin.shape}, voxel {voxel})")
+    return sdf, hull_sdf, tuple(float(v) for v in origin), voxel
+
+
 def write_mesh(path: str, mesh: trimesh.Trimesh) -> None:
     with atomic_path(path) as temporary:
         mesh.export(temporary, file_type="ply")

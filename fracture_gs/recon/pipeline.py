@@ -73,6 +73,7 @@ class TrainConfig:
     min_component: float = 0.005
     max_offset: float = 0.25
     from_ply: str | None = None
+    from_sdf: str | None = None
     bbox: list[float] | None = None
     start_checkpoint: str | None = None
     checkpoint_every: int = 1000
@@ -102,6 +103,7 @@ class Inputs:
     parts_source: str
     imported: GaussianModel | None
     checkpoint: dict[str, Any] | None
+    geometry: tuple[VoxelGrid, torch.Tensor, torch.Tensor] | None = None
 
 
 def _has_test_split(source_path: str) -> bool:
@@ -118,7 +120,8 @@ def read_inputs(config: TrainConfig) -> Inputs:
     imported = None
     if config.from_ply is not None:
         imported = read_ply(config.from_ply)
-    if train.masks is None and not (imported is not None and config.bbox is not None):
+    if train.masks is None and config.from_sdf is None and not (imported is not None
+                                                                and config.bbox is not None):
         where = os.path.dirname(train.image_paths[0])
         if imported is not None:
             raise ReconstructionError(f"{where}: the images have no alpha channel and there "
@@ -137,7 +140,22 @@ def read_inputs(config: TrainConfig) -> Inputs:
     checkpoint = None
     if config.start_checkpoint is not None:
         checkpoint = load_checkpoint(config.start_checkpoint)
-    return Inputs(train, test, parts, parts_source, imported, checkpoint)
+    geometry = None
+    if config.from_sdf is not None:
+        geometry = load_sdf(config.from_sdf)
+    return Inputs(train, test, parts, parts_source, imported, checkpoint, geometry)
+
+
+def load_sdf(path: str) -> tuple[VoxelGrid, torch.Tensor, torch.Tensor]:
+    """Grid, SDF and hull SDF of an ``sdf.npz`` from an earlier run (``--from-sdf``)."""
+    if not os.path.isfile(path):
+        raise ReconstructionError(f"--from-sdf: {path}: file not found")
+    try:
+        sdf, hull_sdf, origin, voxel = model_io.read_sdf(path)
+    except ValueError as error:
+        raise ReconstructionError(f"--from-sdf: {path}: {error}") from None
+    grid = VoxelGrid(origin, voxel, tuple(int(n) for n in sdf.shape))
+    return grid, torch.from_numpy(sdf), torch.from_numpy(hull_sdf)
 
 
 def check_config(config: TrainConfig) -> None:
@@ -254,8 +272,11 @@ def _progress(total: int, initial: int, desc: str, quiet: bool) -> tqdm:
 def build_geometry(config: TrainConfig, inputs: Inputs, timer: StageTimer,
                    device: torch.device, log_rows: list[dict],
                    summary: dict[str, Any]) -> tuple[VoxelGrid, torch.Tensor, torch.Tensor]:
-    """Visual hull (or opacity field), stereo carving and the NeuS-style refinement; returns
-    the grid, the final SDF and the hull SDF."""
+    """Visual hull (or opacity field), stereo carving and the NeuS-style refinement (or the
+    SDF of ``--from-sdf``); returns the grid, the final SDF and the hull SDF."""
+    if inputs.geometry is not None:
+        summary["from_sdf"] = os.path.abspath(config.from_sdf or "")
+        return inputs.geometry
     if inputs.train.masks is None:
         assert inputs.imported is not None and config.bbox is not None
         with timer.stage("opacity_field"):
@@ -321,7 +342,7 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
         with timer.stage("marching_cubes"):
             mesh = extract_mesh(sdf, grid, config.min_component,
                                 source=f"{folder.file('sdf.npz')} (--sdf-res {config.sdf_res})")
-            if inputs.train.masks is not None:
+            if inputs.train.masks is not None or inputs.geometry is not None:
                 summary["hull_volume"] = float(extract_mesh(hull_sdf, grid, config.min_component,
                                                             "visual hull").volume)
         model_io.write_mesh(folder.file("mesh.ply"), mesh)
