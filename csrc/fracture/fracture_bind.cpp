@@ -13,6 +13,14 @@ namespace {
 
 using torch::Tensor;
 
+#ifdef FGS_WITH_CUDA
+constexpr auto kDeformCuda = fracture::deform_gaussians_cuda;
+constexpr auto kLensCuda = fracture::lens_ellipsoids_cuda;
+#else
+constexpr void (*kDeformCuda)(const fracture::DeformInputs&, const fracture::DeformOutputs&, void*) = nullptr;
+constexpr void (*kLensCuda)(const fracture::LensInputs&, const fracture::LensOutputs&, void*) = nullptr;
+#endif
+
 void check(const Tensor& t, const char* name, torch::ScalarType dtype,
            std::initializer_list<int64_t> shape, const Tensor& like) {
   TORCH_CHECK(t.scalar_type() == dtype && t.is_contiguous(), name, " must be a contiguous ",
@@ -20,6 +28,23 @@ void check(const Tensor& t, const char* name, torch::ScalarType dtype,
   TORCH_CHECK(t.sizes().equals(shape), name, " must have shape ", c10::IntArrayRef(shape),
               ", got ", t.sizes());
   TORCH_CHECK(t.device() == like.device(), name, " is on ", t.device(), ", expected ", like.device());
+}
+
+// Runs a kernel pair on the tensors' device: the CUDA launcher when they are on a GPU (and the
+// extension has CUDA kernels), else the OpenMP loop.
+template <class In, class Out>
+void run_kernel(bool on_cuda, void (*cpu)(const In&, const Out&),
+                void (*cuda)(const In&, const Out&, void*), const In& in, const Out& out) {
+  if (on_cuda) {
+#ifdef FGS_WITH_CUDA
+    cuda(in, out, current_cuda_stream());
+#else
+    (void)cuda;
+    TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+  } else {
+    cpu(in, out);
+  }
 }
 
 // (means (M,3), covariances (M,3,3), view_rotations (M,3,3)); see deform.h.
@@ -54,15 +79,7 @@ std::vector<Tensor> deform_gaussians(const Tensor& x, const Tensor& F, const Ten
   in.gaussian_object = gaussian_object.data_ptr<int32_t>();
   const fracture::DeformOutputs out{means.data_ptr<float>(), covariances.data_ptr<float>(),
                                     view_rotations.data_ptr<float>()};
-  if (x.is_cuda()) {
-#ifdef FGS_WITH_CUDA
-    fracture::deform_gaussians_cuda(in, out, current_cuda_stream());
-#else
-    TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
-#endif
-  } else {
-    fracture::deform_gaussians_cpu(in, out);
-  }
+  run_kernel(x.is_cuda(), fracture::deform_gaussians_cpu, kDeformCuda, in, out);
   return {means, covariances, view_rotations};
 }
 
@@ -84,15 +101,7 @@ std::vector<Tensor> lens_ellipsoids(const Tensor& centre_i, const Tensor& radius
   const fracture::LensOutputs out{centre.data_ptr<float>(), scales.data_ptr<float>(),
                                   rotation.data_ptr<float>(), covariance.data_ptr<float>(),
                                   valid.data_ptr<bool>()};
-  if (centre_i.is_cuda()) {
-#ifdef FGS_WITH_CUDA
-    fracture::lens_ellipsoids_cuda(in, out, current_cuda_stream());
-#else
-    TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
-#endif
-  } else {
-    fracture::lens_ellipsoids_cpu(in, out);
-  }
+  run_kernel(centre_i.is_cuda(), fracture::lens_ellipsoids_cpu, kLensCuda, in, out);
   return {centre, scales, rotation, covariance, valid};
 }
 

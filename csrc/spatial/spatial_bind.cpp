@@ -1,6 +1,7 @@
 // Torch binding of the spatial kernels (spatial_kernels.h): checks tensors, builds the hash
-// grid (CPU: counting sort in the kernel; CUDA: torch sort of bucket << 32 | index keys) and
-// runs the queries. Python side: fracture_gs/fracture/spatial.py.
+// grid (CPU: counting sort in the kernel; CUDA: torch sort of bucket << 32 | index keys and a
+// gather of the points into that order) and runs the queries. Python side:
+// fracture_gs/fracture/spatial.py.
 #include "spatial/spatial_bind.h"
 
 #include <cmath>
@@ -37,7 +38,7 @@ const int32_t* int_ptr(const OptTensor& t, int64_t n, const Tensor& like, const 
 
 struct BuiltGrid {
   spatial::HashGrid grid;
-  Tensor sorted_point, bucket_start;  // keep the buffers alive
+  Tensor sorted_point, bucket_start, sorted_xyz, sorted_cell;  // keep the buffers alive
 };
 
 BuiltGrid build_grid(const Tensor& points, double cell) {
@@ -49,6 +50,7 @@ BuiltGrid build_grid(const Tensor& points, double cell) {
   spatial::HashGrid& g = out.grid;
   g.inv_cell = (float)(1.0 / cell);
   g.table_mask = (uint32_t)(table - 1);
+  int64_t cells[3] = {1, 1, 1};
   for (int a = 0; a < 3; ++a) g.origin[a] = 0.f;
   if (n > 0) {
     const Tensor lo = std::get<0>(points.min(0)).to(torch::kCPU);
@@ -57,31 +59,44 @@ BuiltGrid build_grid(const Tensor& points, double cell) {
                 "points contain NaN or Inf");
     for (int a = 0; a < 3; ++a) {
       g.origin[a] = lo[a].item<float>();
-      TORCH_CHECK((hi[a].item<double>() - lo[a].item<double>()) / cell < 1e9,
-                  "radius is too small for the extent of the points");
+      const double span = (hi[a].item<double>() - lo[a].item<double>()) / cell;
+      TORCH_CHECK(span < spatial::kMaxCells, "radius ", cell, " is too small for the extent of the "
+                  "points (", span, " cells along an axis, at most ", spatial::kMaxCells, ")");
+      cells[a] = (int64_t)span + 3;
     }
   }
+  g.stride_j = cells[2];
+  g.stride_i = cells[1] * cells[2];
   const auto iopt = points.options().dtype(torch::kInt32);
+  const auto lopt = points.options().dtype(torch::kInt64);
   out.sorted_point = torch::empty({n}, iopt);
   out.bucket_start = torch::empty({table + 1}, iopt);
+  out.sorted_xyz = torch::empty({n, 3}, points.options());
+  out.sorted_cell = torch::empty({n}, lopt);
   if (points.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    Tensor keys = torch::empty({n}, points.options().dtype(torch::kInt64));
+    Tensor keys = torch::empty({n}, lopt), cell_keys = torch::empty({n}, lopt);
     spatial::bucket_keys_cuda(g, points.data_ptr<float>(), n, keys.data_ptr<int64_t>(),
-                              current_cuda_stream());
+                              cell_keys.data_ptr<int64_t>(), current_cuda_stream());
     const Tensor sorted = std::get<0>(keys.sort());
-    out.sorted_point = sorted.bitwise_and(0xffffffffLL).to(torch::kInt32).contiguous();
+    const Tensor order = sorted.bitwise_and(0xffffffffLL);
+    out.sorted_point = order.to(torch::kInt32).contiguous();
+    out.sorted_xyz = points.index_select(0, order).contiguous();
+    out.sorted_cell = cell_keys.index_select(0, order).contiguous();
     const Tensor bucket = sorted.bitwise_right_shift(32).contiguous();
-    const Tensor boundaries = torch::arange(table + 1, points.options().dtype(torch::kInt64));
+    const Tensor boundaries = torch::arange(table + 1, lopt);
     out.bucket_start = torch::searchsorted(bucket, boundaries).to(torch::kInt32).contiguous();
     g.sorted_point = out.sorted_point.data_ptr<int32_t>();
     g.bucket_start = out.bucket_start.data_ptr<int32_t>();
+    g.sorted_xyz = out.sorted_xyz.data_ptr<float>();
+    g.sorted_cell = out.sorted_cell.data_ptr<int64_t>();
 #else
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
   } else {
     spatial::build_grid_cpu(points.data_ptr<float>(), n, g, out.sorted_point.data_ptr<int32_t>(),
-                            out.bucket_start.data_ptr<int32_t>());
+                            out.bucket_start.data_ptr<int32_t>(), out.sorted_xyz.data_ptr<float>(),
+                            out.sorted_cell.data_ptr<int64_t>());
   }
   return out;
 }
@@ -107,12 +122,12 @@ std::tuple<Tensor, Tensor> knn_within(const Tensor& points, const OptTensor& poi
   const BuiltGrid built = build_grid(points, radius);
   if (points.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    spatial::knn_within_cuda(built.grid, points.data_ptr<float>(), pg, q, queries.data_ptr<float>(),
+    spatial::knn_within_cuda(built.grid, pg, q, queries.data_ptr<float>(),
                              qg, qs, (float)radius, (int)k, index.data_ptr<int64_t>(),
                              distance.data_ptr<float>(), current_cuda_stream());
 #endif
   } else {
-    spatial::knn_within_cpu(built.grid, points.data_ptr<float>(), pg, q, queries.data_ptr<float>(),
+    spatial::knn_within_cpu(built.grid, pg, q, queries.data_ptr<float>(),
                             qg, qs, (float)radius, (int)k, index.data_ptr<int64_t>(),
                             distance.data_ptr<float>());
   }
@@ -129,12 +144,12 @@ Tensor component_roots(const Tensor& points, const OptTensor& group, double radi
   const BuiltGrid built = build_grid(points, radius);
   if (points.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    spatial::components_cuda(built.grid, points.data_ptr<float>(), gp, n, (float)radius,
+    spatial::components_cuda(built.grid, gp, n, (float)radius,
                              parent.data_ptr<int32_t>(), labels.data_ptr<int32_t>(),
                              current_cuda_stream());
 #endif
   } else {
-    spatial::components_cpu(built.grid, points.data_ptr<float>(), gp, n, (float)radius,
+    spatial::components_cpu(built.grid, gp, n, (float)radius,
                             parent.data_ptr<int32_t>(), labels.data_ptr<int32_t>());
   }
   return labels.to(torch::kInt64);

@@ -116,6 +116,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="FPGO sphere radius in Gaussian scales (default 2)")
     parser.add_argument("--min-fragment", type=int, default=defaults.min_fragment,
                         help="FPGO: fragments with fewer particles are not drawn (default 10)")
+    parser.add_argument("--no-exclusive", dest="exclusive", action="store_false",
+                        help="FPGO lens Gaussians blend like all others instead of only the "
+                        "nearest one per pixel (SPEC §6.1 'exclusive')")
     return parser.parse_args(argv)
 
 
@@ -136,7 +139,8 @@ def options_from_args(args: argparse.Namespace) -> RenderOptions:
         raise InvalidInput(f"--fps {args.fps}: must be > 0")
     try:
         settings = FPGOSettings(dc_factor=args.dc_factor, k_neighbours=args.k_neighbours,
-                                k_sigma=args.k_sigma, min_fragment=args.min_fragment)
+                                k_sigma=args.k_sigma, min_fragment=args.min_fragment,
+                                exclusive=args.exclusive)
     except ValueError as exc:
         name = str(exc).split()[0].replace("_", "-")
         raise InvalidInput(f"--{name}: {exc}") from None

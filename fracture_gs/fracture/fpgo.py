@@ -14,8 +14,9 @@ particles), it returns the Gaussians to draw:
    object within d_c (current positions, hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
    σ the Gaussian's current size det(Σ)^(1/6), give one lens ellipsoid per overlapping pair
    (:func:`fracture_gs.fracture.ops.lens_ellipsoids`), with g_i's opacity, SH and view rotation,
-   marked ``exclusive``; they replace g_i (and any other Gaussian particle i drives). A
-   fractured particle without an overlapping intact neighbour keeps its Gaussian.
+   marked ``exclusive`` (unless ``FPGOSettings.exclusive`` is off); they replace g_i (and any
+   other Gaussian particle i drives). A fractured particle without an overlapping intact
+   neighbour keeps its Gaussian.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ from typing import TYPE_CHECKING, Callable
 import torch
 
 from fracture_gs.fracture.ops import lens_ellipsoids
-from fracture_gs.fracture.spatial import connected_components, knn_within
+from fracture_gs.fracture.spatial import component_roots, knn_within
 
 if TYPE_CHECKING:  # pragma: no cover
     from fracture_gs.render.frame_gaussians import FrameGaussians
@@ -43,6 +44,8 @@ class FPGOSettings:
     k_sigma: float = 2.0         # sphere radius = k_sigma × Gaussian scale
     min_fragment: int = 10       # fragments with fewer particles are not drawn
     interpolation_k: int = 4     # surface Gaussians an interior particle's appearance comes from
+    exclusive: bool = True       # lens Gaussians are `exclusive` (SPEC §6.1: per pixel only the
+    #                              nearest one blends); False: they blend like any other
 
     def __post_init__(self) -> None:
         if not self.dc_factor > 0:
@@ -75,6 +78,7 @@ class FractureParticles:
     object_spacing: torch.Tensor    # (O,) rest particle spacing per object (CPU float64)
     object_rotation: torch.Tensor   # (O,3,3) rotation of each object's scene transform
     rows_by_object: list[torch.Tensor]  # particle indices of each object
+    centre_gaussian: torch.Tensor   # (N,) row of the own Gaussian the particle drives, else -1
 
 
 @dataclass
@@ -109,18 +113,57 @@ def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings:
         if not bool(active_objects[o]) or rows.numel() == 0:
             continue
         radius = settings.dc_factor * float(particles.object_spacing[o])
-        labels = connected_components(x[rows], radius, backend=backend)
-        sizes = torch.bincount(labels)
-        hidden[rows] = sizes[labels] < settings.min_fragment
+        roots = component_roots(x.index_select(0, rows), radius, backend=backend)
+        sizes = torch.bincount(roots, minlength=rows.numel())
+        hidden[rows] = sizes[roots] < settings.min_fragment
     return hidden
 
 
 GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
                     "object_id", "is_fpgo", "particle")
+APPEARANCE = ("opacities", "sh", "view_rotations")
 
 
-def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor, fractured: torch.Tensor,
-               particles: FractureParticles, settings: FPGOSettings, deform_interior: InteriorDeform,
+def neighbour_pairs(x: torch.Tensor, query: torch.Tensor, candidate: torch.Tensor,
+                    particles: FractureParticles, settings: FPGOSettings,
+                    active_objects: torch.Tensor, backend: str = "auto"
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(i, j) particle pairs: the ``k_neighbours`` nearest ``candidate`` particles j within d_c
+    of every ``query`` particle i, in the same object (SPEC §6.3 step 2)."""
+    pair_i, pair_j = [], []
+    for o, rows in enumerate(particles.rows_by_object):
+        if not bool(active_objects[o]):
+            continue
+        queries, points = rows[query[rows]], rows[candidate[rows]]
+        if queries.numel() == 0 or points.numel() == 0:
+            continue
+        d_c = settings.dc_factor * float(particles.object_spacing[o])
+        index, _ = knn_within(x.index_select(0, points), x.index_select(0, queries), d_c,
+                              settings.k_neighbours, backend=backend)
+        found = index >= 0
+        pair_i.append(queries[:, None].expand_as(index)[found])
+        pair_j.append(points[index[found]])
+    if not pair_i:
+        empty = torch.empty(0, dtype=torch.long, device=x.device)
+        return empty, empty
+    return torch.cat(pair_i), torch.cat(pair_j)
+
+
+def particle_spheres(rows: torch.Tensor, x: torch.Tensor, F_E: torch.Tensor,
+                     means: torch.Tensor, particles: FractureParticles,
+                     k_sigma: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sphere (centre, radius) of the Gaussian of each particle in ``rows``: the mean of the
+    Gaussian it drives (the particle's position when it drives none) and k_sigma × the Gaussian's
+    current size, rest size × |det F_E|^(1/3) (= det(Σ_t)^(1/6) for its own Gaussian)."""
+    gaussian = particles.centre_gaussian[rows]
+    centre = torch.where((gaussian >= 0)[:, None], means[gaussian.clamp_min(0)], x[rows])
+    radius = k_sigma * particles.rest_sigma[rows] * cube_root_abs_det(F_E[rows])
+    return centre, radius
+
+
+def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
+               fractured: torch.Tensor, particles: FractureParticles, settings: FPGOSettings,
+               deform_interior: InteriorDeform,
                backend: str = "auto") -> tuple[dict[str, torch.Tensor], FPGOStats]:
     """The Gaussians to draw for one frame (a dict of the ``GAUSSIAN_COLUMNS``) and what FPGO did.
 
@@ -136,98 +179,78 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor, 
         stats.milliseconds = (time.perf_counter() - started) * 1e3
         return columns, stats
     device = x.device
-    object_rows = particles.rows_by_object
-    active = torch.zeros(len(object_rows), dtype=torch.bool)
-    active[torch.unique(particles.object_id[fractured]).cpu()] = True
+    active = (torch.bincount(particles.object_id[fractured],
+                             minlength=len(particles.rows_by_object)) > 0).cpu()
 
     tick = time.perf_counter()
     hidden = small_fragment_mask(x, particles, settings, active, backend)
-    detail["fragments"] = (time.perf_counter() - tick) * 1e3
     stats.hidden_particles = int(hidden.sum())
+    detail["fragments"] = (time.perf_counter() - tick) * 1e3
 
-    # the own Gaussian g_i of every particle that may need one: trained / flat rows, or the
-    # interpolated Gaussian of a fractured interior particle
+    # fractured interior particles get their interpolated Gaussian (step 4)
     tick = time.perf_counter()
     query = fractured & ~hidden
     interior = torch.nonzero(query & (particles.own_gaussian < 0)).flatten()
-    interior_means, interior_cov, interior_rot = deform_interior(interior)
     interior_irow = particles.interior_row[interior]
-    interior_g = {"means": interior_means, "covariances": interior_cov,
-                  "opacities": particles.interior_opacity[interior_irow],
-                  "sh": particles.interior_sh[interior_irow], "view_rotations": interior_rot}
+    interior_cols = dict(zip(("means", "covariances", "view_rotations"), deform_interior(interior)))
+    interior_cols["opacities"] = particles.interior_opacity[interior_irow]
+    interior_cols["sh"] = particles.interior_sh[interior_irow]
     detail["interior"] = (time.perf_counter() - tick) * 1e3
 
-    # sphere centre and radius of every particle's Gaussian at this frame
+    # k nearest intact neighbours (step 2) and the lens ellipsoids of the pairs (step 3)
     tick = time.perf_counter()
-    # (a particle that drives its own Gaussian: that Gaussian's mean; any other: the particle)
-    with_own = torch.nonzero(particles.own_gaussian >= 0).flatten()
-    drivers = with_own[gaussians.particle[particles.own_gaussian[with_own]] == with_own]
-    centre = x.clone()
-    centre[drivers] = gaussians.means[particles.own_gaussian[drivers]]
-    radius = settings.k_sigma * particles.rest_sigma * cube_root_abs_det(F_E)
-
-    # k nearest intact neighbours of every fractured particle, object by object
-    pair_i, pair_j = [], []
-    candidate = ~fractured & ~hidden
-    for o, rows in enumerate(object_rows):
-        if not bool(active[o]):
-            continue
-        queries = rows[query[rows]]
-        points = rows[candidate[rows]]
-        if queries.numel() == 0 or points.numel() == 0:
-            continue
-        d_c = settings.dc_factor * float(particles.object_spacing[o])
-        index, _ = knn_within(x[points], x[queries], d_c, settings.k_neighbours, backend=backend)
-        found = index >= 0
-        pair_i.append(queries[:, None].expand_as(index)[found])
-        pair_j.append(points[index[found]])
-    pair_i = torch.cat(pair_i) if pair_i else torch.empty(0, dtype=torch.long, device=device)
-    pair_j = torch.cat(pair_j) if pair_j else torch.empty(0, dtype=torch.long, device=device)
+    pair_i, pair_j = neighbour_pairs(x, query, ~fractured & ~hidden, particles, settings, active,
+                                     backend)
     detail["neighbours"] = (time.perf_counter() - tick) * 1e3
-
     tick = time.perf_counter()
-    lens = lens_ellipsoids(centre[pair_i], radius[pair_i], centre[pair_j], radius[pair_j],
-                           settings.k_sigma, backend=backend)
-    pair_i = pair_i[lens.valid]
+    centre_i, radius_i = particle_spheres(pair_i, x, F_E, gaussians.means, particles,
+                                          settings.k_sigma)
+    centre_j, radius_j = particle_spheres(pair_j, x, F_E, gaussians.means, particles,
+                                          settings.k_sigma)
+    lens = lens_ellipsoids(centre_i, radius_i, centre_j, radius_j, settings.k_sigma,
+                           backend=backend)
+    valid = torch.nonzero(lens.valid).flatten()
+    pair_i = pair_i.index_select(0, valid)
     replaced = torch.zeros_like(fractured)
     replaced[pair_i] = True
     stats.replaced_particles = int(replaced.sum())
     stats.lens_gaussians = int(pair_i.numel())
     detail["mvee"] = (time.perf_counter() - tick) * 1e3
 
-    # appearance of g_i for each lens: its own row, or its interpolated Gaussian
+    # a lens inherits opacity, SH and view rotation of g_i: its own Gaussian or its interpolated one
     tick = time.perf_counter()
     slot = torch.full_like(particles.own_gaussian, -1)
     slot[interior] = torch.arange(interior.numel(), device=device)
     own = particles.own_gaussian[pair_i]
     from_own = own >= 0
-    lens_cols = {"means": lens.centre[lens.valid], "covariances": lens.covariance[lens.valid]}
-    for name in ("opacities", "sh", "view_rotations"):
-        source = columns[name][own.clamp_min(0)]
-        inner = interior_g[name][slot[pair_i].clamp_min(0)] if interior.numel() else source
-        shape = (-1,) + (1,) * (source.dim() - 1)
-        lens_cols[name] = torch.where(from_own.view(shape), source, inner)
+    lens_cols = {"means": lens.centre.index_select(0, valid),
+                 "covariances": lens.covariance.index_select(0, valid)}
+    for name in APPEARANCE:
+        source = columns[name].index_select(0, own.clamp_min(0))
+        if interior.numel():
+            inner = interior_cols[name].index_select(0, slot[pair_i].clamp_min(0))
+            shape = (-1,) + (1,) * (source.dim() - 1)
+            source = torch.where(from_own.view(shape), source, inner)
+        lens_cols[name] = source
 
-    keep_base = ~(hidden | replaced)[gaussians.particle]
-    keep_interior = ~replaced[interior]
-    stats.interior_gaussians = int(keep_interior.sum())
-    n_lens = pair_i.numel()
-    n_int = int(keep_interior.sum())
-    flags = {
-        "exclusive": torch.cat([columns["exclusive"][keep_base],
-                                torch.zeros(n_int, dtype=torch.bool, device=device),
-                                torch.ones(n_lens, dtype=torch.bool, device=device)]),
-        "object_id": torch.cat([columns["object_id"][keep_base],
-                                particles.object_id[interior][keep_interior].to(columns["object_id"].dtype),
-                                particles.object_id[pair_i].to(columns["object_id"].dtype)]),
-        "is_fpgo": torch.cat([columns["is_fpgo"][keep_base],
-                              torch.ones(n_int + n_lens, dtype=torch.bool, device=device)]),
-        "particle": torch.cat([columns["particle"][keep_base], interior[keep_interior], pair_i]),
-    }
-    out = {name: torch.cat([columns[name][keep_base], interior_g[name][keep_interior],
-                            lens_cols[name]])
-           for name in ("means", "covariances", "opacities", "sh", "view_rotations")}
-    out.update(flags)
+    # the base Gaussians of hidden and replaced particles go; interior ones of replaced ones too
+    keep_base = torch.nonzero(~(hidden | replaced)[gaussians.particle]).flatten()
+    keep_interior = torch.nonzero(~replaced[interior]).flatten()
+    stats.interior_gaussians = int(keep_interior.numel())
+    count_new = keep_interior.numel() + pair_i.numel()
+    object_dtype = columns["object_id"].dtype
+    interior_cols.update(particle=interior, object_id=particles.object_id[interior].to(object_dtype))
+    lens_cols.update(particle=pair_i, object_id=particles.object_id[pair_i].to(object_dtype))
+    out = {name: torch.cat([columns[name].index_select(0, keep_base),
+                            interior_cols[name].index_select(0, keep_interior), lens_cols[name]])
+           for name in ("means", "covariances", "opacities", "sh", "view_rotations", "particle",
+                        "object_id")}
+    out["exclusive"] = torch.cat([
+        columns["exclusive"].index_select(0, keep_base),
+        torch.zeros(keep_interior.numel(), dtype=torch.bool, device=device),
+        torch.full((pair_i.numel(),), settings.exclusive, dtype=torch.bool, device=device)])
+    out["is_fpgo"] = torch.cat([columns["is_fpgo"].index_select(0, keep_base),
+                                torch.ones(count_new, dtype=torch.bool, device=device)])
     detail["assemble"] = (time.perf_counter() - tick) * 1e3
     stats.detail_ms = detail
     stats.milliseconds = (time.perf_counter() - started) * 1e3

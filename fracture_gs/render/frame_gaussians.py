@@ -239,6 +239,40 @@ def _pad_sh(sh: np.ndarray, coefficients: int) -> np.ndarray:
     return out
 
 
+def _fracture_arrays(sim: Simulation, tables: list[_ObjectTable], coefficients: int,
+                     interpolation_k: int) -> dict[str, np.ndarray]:
+    """Per-particle arrays of :class:`FractureParticles` (own Gaussian, sphere centre Gaussian,
+    rest size, and the interpolated appearance of particles without a Gaussian)."""
+    count = len(sim.particles)
+    rest_x = sim.particles.rest_x.astype(np.float64)
+    own_gaussian = np.full(count, -1, dtype=np.int64)
+    rest_sigma = np.zeros(count)
+    offset = 0
+    for index, table in enumerate(tables):
+        rest_sigma[sim.particles.obj_id == index] = 0.5 * table.spacing
+        own_gaussian[table.own_particles] = offset + table.own_rows
+        rest_sigma[table.own_particles] = table.own_sigma
+        offset += table.driver.shape[0]
+    driver = np.concatenate([t.driver for t in tables])
+    with_own = np.nonzero(own_gaussian >= 0)[0]
+    drives_own = with_own[driver[own_gaussian[with_own]] == with_own]
+    centre_gaussian = np.full(count, -1, dtype=np.int64)
+    centre_gaussian[drives_own] = own_gaussian[drives_own]
+    interior = np.nonzero(own_gaussian < 0)[0]
+    interior_row = np.full(count, -1, dtype=np.int64)
+    interior_row[interior] = np.arange(interior.size)
+    interior_opacity = np.zeros(interior.size, np.float32)
+    interior_sh = np.zeros((interior.size, coefficients, 3), np.float32)
+    for index, table in enumerate(tables):
+        members = np.nonzero(sim.particles.obj_id[interior] == index)[0]
+        opacity, sh = _interpolated_appearance(rest_x, table, interior[members], interpolation_k)
+        interior_opacity[members] = opacity
+        interior_sh[members] = _pad_sh(sh, coefficients)
+    return {"own_gaussian": own_gaussian, "centre_gaussian": centre_gaussian,
+            "interior_row": interior_row, "interior_opacity": interior_opacity,
+            "interior_sh": interior_sh, "rest_sigma": rest_sigma.astype(np.float32)}
+
+
 class SceneGaussians:
     """All drawable Gaussians of a simulation at rest, bound to its particles (build once with
     :meth:`from_simulation`, then call :meth:`frame` for each frame)."""
@@ -267,44 +301,23 @@ class SceneGaussians:
         folder when a model cannot be used)."""
         device = device if device is not None else torch.device("cpu")
         settings = settings if settings is not None else FPGOSettings()
-        count = len(sim.particles)
-        if count >= 2 ** 31 - 1:
-            raise ModelError(f"{sim.root}/particles.npz: {count} particles exceed the int32 "
-                             "indices of the neighbour kernels")
-        rest_x = sim.particles.rest_x.astype(np.float64)
+        if len(sim.particles) >= 2 ** 31 - 1:
+            raise ModelError(f"{sim.root}/particles.npz: {len(sim.particles)} particles exceed "
+                             "the int32 indices of the neighbour kernels")
         tables, sources = [], []
-        own_gaussian = np.full(count, -1, dtype=np.int64)
-        rest_sigma = np.zeros(count)
         for index, obj in enumerate(sim.scene.objects):
             rows = np.nonzero(sim.particles.obj_id == index)[0]
             if rows.size == 0:
                 raise ModelError(f"{sim.root}/particles.npz: object '{obj.name}' has no particles")
             trained = obj.model is not None and obj.model.is_dir()
-            table = _trained_table(sim, index, rows) if trained else _flat_table(sim, index, rows)
+            tables.append(_trained_table(sim, index, rows) if trained else
+                          _flat_table(sim, index, rows))
             sources.append(str(latest_point_cloud(obj.model)) if trained else "flat colour")
-            offset = sum(t.driver.shape[0] for t in tables)
-            own_gaussian[table.own_particles] = offset + table.own_rows
-            rest_sigma[rows] = 0.5 * table.spacing
-            rest_sigma[table.own_particles] = table.own_sigma
-            tables.append(table)
         coefficients = max(t.sh.shape[1] for t in tables)
-        interior = np.nonzero(own_gaussian < 0)[0]
-        interior_row = np.full(count, -1, dtype=np.int64)
-        interior_row[interior] = np.arange(interior.size)
-        interior_opacity = np.zeros(interior.size)
-        interior_sh = np.zeros((interior.size, coefficients, 3), np.float32)
-        obj_id = sim.particles.obj_id
-        for index, table in enumerate(tables):
-            members = np.nonzero(obj_id[interior] == index)[0]
-            opacity, sh = _interpolated_appearance(rest_x, table, interior[members],
-                                                   settings.interpolation_k)
-            interior_opacity[members] = opacity
-            interior_sh[members] = _pad_sh(sh, coefficients)
 
         def tensor(array: np.ndarray, dtype: torch.dtype) -> torch.Tensor:
             return torch.as_tensor(np.ascontiguousarray(array)).to(device=device, dtype=dtype)
 
-        rotations = np.stack([_object_transform(obj)[0] for obj in sim.scene.objects])
         table_columns = {
             "driver": tensor(np.concatenate([t.driver for t in tables]), torch.int64),
             "rest_offset": tensor(np.concatenate([t.rest_offset for t in tables]), torch.float32),
@@ -316,14 +329,14 @@ class SceneGaussians:
             "object_id": tensor(np.concatenate([np.full(t.driver.shape[0], i)
                                                 for i, t in enumerate(tables)]), torch.int32),
         }
-        spacing = np.array([t.spacing for t in tables])
+        arrays = _fracture_arrays(sim, tables, coefficients, settings.interpolation_k)
+        rotations = np.stack([_object_transform(obj)[0] for obj in sim.scene.objects])
+        obj_id = sim.particles.obj_id
         fracture = FractureParticles(
-            object_id=tensor(obj_id, torch.int64), own_gaussian=tensor(own_gaussian, torch.int64),
-            interior_row=tensor(interior_row, torch.int64),
-            interior_opacity=tensor(interior_opacity, torch.float32),
-            interior_sh=tensor(interior_sh, torch.float32),
-            rest_sigma=tensor(rest_sigma, torch.float32),
-            object_spacing=torch.as_tensor(spacing, dtype=torch.float64),
+            **{name: tensor(value, torch.float32 if value.dtype.kind == "f" else torch.int64)
+               for name, value in arrays.items()},
+            object_id=tensor(obj_id, torch.int64),
+            object_spacing=torch.as_tensor([t.spacing for t in tables], dtype=torch.float64),
             object_rotation=tensor(rotations, torch.float32),
             rows_by_object=[tensor(np.nonzero(obj_id == o)[0], torch.int64)
                             for o in range(len(tables))])
