@@ -1,10 +1,10 @@
 """Per-frame cost of rendering a simulation frame, with and without FPGO.
 
-Scene (issue 11): a solid sphere of ``--particles`` particles (default 200k) on a cubic lattice;
-the outer layer carries trained-looking Gaussians (isotropic, 0.7 × spacing, SH degree 3); half of
-the particles (the x > 0 hemisphere, ``--fractured``) are fractured and that half has moved away
-by one spacing with a random jitter of 0.3 spacings per particle (an opened crack, scattered
-fragments), F_E a random small strain. One frame is rendered at ``--size``² from ``--views``
+Scene (issue 11): a solid ball of ``--particles`` particles (default 200k) on a cubic lattice;
+the outer layer carries trained-looking Gaussians (isotropic, 0.7 × spacing, SH degree 3). Six
+random crack bands flag ``--fractured`` (default half) of the particles as fractured; the pieces
+between the cracks move apart by half a spacing and the fractured particles scatter by a further
+0.3 spacing (see ``crack_pattern``); F_E is a random small strain. One frame is rendered at ``--size``² from ``--views``
 orbit cameras; timings are medians over ``--repeats`` runs after a warm-up:
 
 * ``frame_ms``: the Gaussians of the frame (deformation: F Σ F^T, polar rotation; plus FPGO),
@@ -48,6 +48,26 @@ def sphere_particles(count: int) -> tuple[np.ndarray, np.ndarray, float]:
     return grid[inside], radius[inside] > 1.0 - spacing, spacing
 
 
+def crack_pattern(points: np.ndarray, spacing: float, share: float, rng: np.random.Generator,
+                  planes: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Fractured flags and moved positions: bands around ``planes`` random planes through the
+    ball, as wide as needed to flag ``share`` of the particles, open the ball into pieces; each
+    piece (sign pattern of the planes) moves by 0.5 spacing along a random direction, and every
+    fractured particle by a further random 0.3 spacing."""
+    normals = rng.normal(size=(planes, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    offsets = rng.uniform(-0.5, 0.5, planes)
+    signed = points @ normals.T - offsets                        # (N, planes)
+    distance = np.abs(signed).min(axis=1)
+    fractured = distance <= np.quantile(distance, share)
+    piece = ((signed > 0) * (1 << np.arange(planes))).sum(axis=1)
+    shift = rng.normal(size=(1 << planes, 3))
+    shift *= 0.5 * spacing / np.linalg.norm(shift, axis=1, keepdims=True)
+    moved = points + shift[piece]
+    moved[fractured] += 0.3 * spacing * rng.standard_normal((int(fractured.sum()), 3))
+    return fractured, moved
+
+
 def build(count: int, fractured_share: float, folder: Path, seed: int = 0):
     rng = np.random.default_rng(seed)
     points, surface, spacing = sphere_particles(count)
@@ -62,7 +82,7 @@ def build(count: int, fractured_share: float, folder: Path, seed: int = 0):
     gaussian_index[surface] = np.arange(gaussians)
     write_model_folder(folder / "model", points, np.full(n, spacing ** 3), surface, gaussian_index,
                        model, spacing=spacing)
-    material = {"part": 0, "model": "nacc", "E": 1e5, "nu": 0.3, "density": 1000.0}
+    material = {"part": 0, "model": "elastic", "E": 1e5, "nu": 0.3, "density": 1000.0}
     scene = parse_scene({"name": "bench_render", "domain": {"min": [-2, -2, -2], "max": [2, 2, 2],
                                                             "grid": 64},
                          "objects": [{"name": "sphere", "model": str(folder / "model"),
@@ -71,10 +91,8 @@ def build(count: int, fractured_share: float, folder: Path, seed: int = 0):
                              is_surface=surface, gaussian_index=gaussian_index,
                              rest_volume=np.full(n, spacing ** 3, np.float32))
     sim = Simulation(folder, scene, particles, [0])
-    threshold = np.quantile(points[:, 0], 1.0 - fractured_share)
-    fractured = points[:, 0] > threshold
-    x = points.copy()
-    x[fractured] += spacing * (np.array([1.0, 0.0, 0.0]) + 0.3 * rng.standard_normal((int(fractured.sum()), 3)))
+    fractured, moved = crack_pattern(points, spacing, fractured_share, rng)
+    x = moved
     F = np.eye(3) + 0.02 * rng.standard_normal((n, 3, 3))
     frame = SimFrame(1, torch.tensor(x, dtype=torch.float32), torch.tensor(F, dtype=torch.float32),
                      torch.from_numpy(fractured))
@@ -105,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         sim, frame, spacing = build(args.particles, args.fractured, Path(tmp))
         scene = SceneGaussians.from_simulation(sim, device)
     frame = frame.to(device)
-    views = orbit_views(args.views, (0.5, 0.0, 0.0), 1.2, args.size, args.size)
+    views = orbit_views(args.views, (0.0, 0.0, 0.0), 1.1, args.size, args.size)
     cameras = [view.camera.to(device) for view in views]
     background = torch.ones(3, device=device)
 

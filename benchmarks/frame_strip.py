@@ -1,8 +1,9 @@
-"""A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top row)
-and without (bottom row), from one orbit view.
+"""A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top row),
+optionally FPGO with lens Gaussians that are not ``exclusive`` (``--no-exclusive-row``), and
+without FPGO (bottom row), from one orbit view.
 
 Usage: PYTHONPATH=. python benchmarks/frame_strip.py --sim output/sims/two_spheres \
-           --frames 0 8 12 16 24 --out docs/two_spheres_fpgo.png [--size 320] [--view 0]
+           --frames 3 5 7 10 24 --out docs/two_spheres_fpgo.png [--size 320] [--view 0]
 Prints one JSON line (what it wrote).
 """
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -37,22 +39,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--view", type=int, default=0, help="orbit camera index (of 8)")
     parser.add_argument("--crop", type=float, default=1.0,
                         help="keep this central share of each image (zoom)")
+    parser.add_argument("--no-exclusive-row", action="store_true",
+                        help="add a row: FPGO with lens Gaussians that are not exclusive")
     args = parser.parse_args(argv)
     sim = Simulation.open(args.sim)
     frames = [sim.select_frames(str(f))[0] for f in args.frames]
     view = resolve_views("orbit:8", sim, sim.frames, (args.size, args.size))[args.view]
     scene = SceneGaussians.from_simulation(sim)
     background = torch.ones(3)
+    variants = [("FPGO", True, True)] + \
+        ([("FPGO, lenses not exclusive", True, False)] if args.no_exclusive_row else []) + \
+        [("no FPGO", False, True)]
     rows = []
-    for fpgo in (True, False):
+    for name, fpgo, exclusive in variants:
         tiles = []
         for index in frames:
             gaussians = scene.frame(sim.load_frame(index), fpgo=fpgo)
+            if not exclusive:
+                gaussians = replace(gaussians, exclusive=torch.zeros_like(gaussians.exclusive))
             image = to_uint8(gaussians.rasterize(view.camera, background)["rgb"])
             margin = int(round(args.size * (1.0 - args.crop) / 2.0))
             image = image[margin:args.size - margin, margin:args.size - margin]
-            caption = f"frame {index}" + ("" if index != frames[0] else
-                                          (", FPGO" if fpgo else ", no FPGO"))
+            caption = f"frame {index}" + (f", {name}" if index == frames[0] else "")
             tiles.append(label(image, caption))
         rows.append(np.concatenate(tiles, axis=1))
     strip = np.concatenate(rows, axis=0)

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Callable
 
 import torch
 
-from fracture_gs.fracture.ops import lens_ellipsoids
+from fracture_gs.fracture.ops import LensEllipsoids, lens_ellipsoids
 from fracture_gs.fracture.spatial import component_roots, knn_within
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -121,7 +121,6 @@ def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings:
 
 GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
                     "object_id", "is_fpgo", "particle")
-APPEARANCE = ("opacities", "sh", "view_rotations")
 
 
 def neighbour_pairs(x: torch.Tensor, query: torch.Tensor, candidate: torch.Tensor,
@@ -191,10 +190,8 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     tick = time.perf_counter()
     query = fractured & ~hidden
     interior = torch.nonzero(query & (particles.own_gaussian < 0)).flatten()
-    interior_irow = particles.interior_row[interior]
-    interior_cols = dict(zip(("means", "covariances", "view_rotations"), deform_interior(interior)))
-    interior_cols["opacities"] = particles.interior_opacity[interior_irow]
-    interior_cols["sh"] = particles.interior_sh[interior_irow]
+    interior_deformed = dict(zip(("means", "covariances", "view_rotations"),
+                                 deform_interior(interior)))
     detail["interior"] = (time.perf_counter() - tick) * 1e3
 
     # k nearest intact neighbours (step 2) and the lens ellipsoids of the pairs (step 3)
@@ -210,48 +207,87 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     lens = lens_ellipsoids(centre_i, radius_i, centre_j, radius_j, settings.k_sigma,
                            backend=backend)
     valid = torch.nonzero(lens.valid).flatten()
-    pair_i = pair_i.index_select(0, valid)
     replaced = torch.zeros_like(fractured)
-    replaced[pair_i] = True
+    replaced[pair_i[valid]] = True
     stats.replaced_particles = int(replaced.sum())
-    stats.lens_gaussians = int(pair_i.numel())
+    stats.lens_gaussians = int(valid.numel())
     detail["mvee"] = (time.perf_counter() - tick) * 1e3
 
-    # a lens inherits opacity, SH and view rotation of g_i: its own Gaussian or its interpolated one
     tick = time.perf_counter()
-    slot = torch.full_like(particles.own_gaussian, -1)
-    slot[interior] = torch.arange(interior.numel(), device=device)
-    own = particles.own_gaussian[pair_i]
-    from_own = own >= 0
-    lens_cols = {"means": lens.centre.index_select(0, valid),
-                 "covariances": lens.covariance.index_select(0, valid)}
-    for name in APPEARANCE:
-        source = columns[name].index_select(0, own.clamp_min(0))
-        if interior.numel():
-            inner = interior_cols[name].index_select(0, slot[pair_i].clamp_min(0))
-            shape = (-1,) + (1,) * (source.dim() - 1)
-            source = torch.where(from_own.view(shape), source, inner)
-        lens_cols[name] = source
-
-    # the base Gaussians of hidden and replaced particles go; interior ones of replaced ones too
-    keep_base = torch.nonzero(~(hidden | replaced)[gaussians.particle]).flatten()
-    keep_interior = torch.nonzero(~replaced[interior]).flatten()
-    stats.interior_gaussians = int(keep_interior.numel())
-    count_new = keep_interior.numel() + pair_i.numel()
-    object_dtype = columns["object_id"].dtype
-    interior_cols.update(particle=interior, object_id=particles.object_id[interior].to(object_dtype))
-    lens_cols.update(particle=pair_i, object_id=particles.object_id[pair_i].to(object_dtype))
-    out = {name: torch.cat([columns[name].index_select(0, keep_base),
-                            interior_cols[name].index_select(0, keep_interior), lens_cols[name]])
-           for name in ("means", "covariances", "opacities", "sh", "view_rotations", "particle",
-                        "object_id")}
-    out["exclusive"] = torch.cat([
-        columns["exclusive"].index_select(0, keep_base),
-        torch.zeros(keep_interior.numel(), dtype=torch.bool, device=device),
-        torch.full((pair_i.numel(),), settings.exclusive, dtype=torch.bool, device=device)])
-    out["is_fpgo"] = torch.cat([columns["is_fpgo"].index_select(0, keep_base),
-                                torch.ones(count_new, dtype=torch.bool, device=device)])
+    out, stats.interior_gaussians = _assemble(columns, interior, interior_deformed, lens, valid,
+                                              pair_i, hidden, replaced, particles,
+                                              settings.exclusive)
     detail["assemble"] = (time.perf_counter() - tick) * 1e3
     stats.detail_ms = detail
     stats.milliseconds = (time.perf_counter() - started) * 1e3
     return out, stats
+
+
+def _gather_cat(parts: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """``torch.cat([source.index_select(0, index) for source, index in parts])`` with one copy."""
+    first = parts[0][0]
+    total = sum(int(index.numel()) for _, index in parts)
+    out = torch.empty((total,) + tuple(first.shape[1:]), dtype=first.dtype, device=first.device)
+    start = 0
+    for source, index in parts:
+        stop = start + int(index.numel())
+        torch.index_select(source, 0, index, out=out[start:stop])
+        start = stop
+    return out
+
+
+def _assemble(columns: dict[str, torch.Tensor], interior: torch.Tensor,
+              interior_deformed: dict[str, torch.Tensor], lens: LensEllipsoids,
+              valid: torch.Tensor, pair_i: torch.Tensor, hidden: torch.Tensor,
+              replaced: torch.Tensor, particles: FractureParticles,
+              exclusive: bool) -> tuple[dict[str, torch.Tensor], int]:
+    """The frame's Gaussians — base ones of particles neither hidden nor replaced, interpolated
+    ones of unreplaced fractured interior particles, and the lenses, which inherit opacity, SH
+    and view rotation from g_i (particle i's own Gaussian, or its interpolated one) — and the
+    number of interpolated ones."""
+    device = interior.device
+    keep_base = torch.nonzero(~(hidden | replaced)[columns["particle"]]).flatten()
+    keep_interior = torch.nonzero(~replaced[interior]).flatten()
+    kept = interior.index_select(0, keep_interior)
+    slot = torch.full_like(particles.own_gaussian, -1)  # particle -> row of interior
+    slot[interior] = torch.arange(interior.numel(), device=device)
+    owners = pair_i.index_select(0, valid)
+    own = particles.own_gaussian.index_select(0, owners)
+    lens_own = torch.nonzero(own >= 0).flatten()       # lenses whose g_i is a base Gaussian
+    lens_inner = torch.nonzero(own < 0).flatten()      # ... an interpolated one
+    own_rows = own.index_select(0, lens_own)
+    inner_owners = owners.index_select(0, lens_inner)
+    lens_order = torch.cat([valid.index_select(0, lens_own), valid.index_select(0, lens_inner)])
+    particle_order = torch.cat([lens_own, lens_inner])
+    object_id = particles.object_id.to(columns["object_id"].dtype)
+    interior_row = particles.interior_row
+    sources = {
+        "means": (interior_deformed["means"], keep_interior, lens.centre, None),
+        "covariances": (interior_deformed["covariances"], keep_interior, lens.covariance, None),
+        "opacities": (particles.interior_opacity, interior_row[kept],
+                      particles.interior_opacity, interior_row[inner_owners]),
+        "sh": (particles.interior_sh, interior_row[kept], particles.interior_sh,
+               interior_row[inner_owners]),
+        "view_rotations": (interior_deformed["view_rotations"], keep_interior,
+                           interior_deformed["view_rotations"], slot[inner_owners]),
+    }
+    out: dict[str, torch.Tensor] = {}
+    for name, (inner, inner_index, lens_inner_source, lens_inner_index) in sources.items():
+        if lens_inner_index is None:   # geometry of the lenses
+            lens_parts = [(lens_inner_source, lens_order)]
+        else:                          # appearance inherited from g_i
+            lens_parts = [(columns[name], own_rows), (lens_inner_source, lens_inner_index)]
+        out[name] = _gather_cat([(columns[name], keep_base), (inner, inner_index), *lens_parts])
+    out["particle"] = _gather_cat([(columns["particle"], keep_base), (interior, keep_interior),
+                                   (owners, particle_order)])
+    out["object_id"] = _gather_cat([(columns["object_id"], keep_base), (object_id, kept),
+                                    (object_id, owners.index_select(0, particle_order))])
+    count_lens = int(valid.numel())
+    out["exclusive"] = torch.cat([
+        columns["exclusive"].index_select(0, keep_base),
+        torch.zeros(keep_interior.numel(), dtype=torch.bool, device=device),
+        torch.full((count_lens,), exclusive, dtype=torch.bool, device=device)])
+    out["is_fpgo"] = torch.cat([columns["is_fpgo"].index_select(0, keep_base),
+                                torch.ones(keep_interior.numel() + count_lens, dtype=torch.bool,
+                                           device=device)])
+    return out, int(keep_interior.numel())
