@@ -23,6 +23,14 @@ import torch  # noqa: E402  (needs the environment above)
 from torch.utils import cpp_extension  # noqa: E402
 
 ROOT = os.path.dirname(os.path.abspath(__file__))
+# Optional parts (``pip install -e .[viewer,video]``; install.sh installs them). Read by
+# install.sh too, so keep this a literal.
+EXTRAS = {
+    "test": ["pytest"],
+    "synthetic": ["mitsuba==3.9.1"],      # also in requirements.txt: the demo and CI use it
+    "viewer": ["viser>=1.1", "selenium>=4.51"],   # interactive viewer; selenium screenshots it
+    "video": ["imageio-ffmpeg>=0.8"],     # mp4 writing without a system ffmpeg
+}
 
 
 def _want_cuda() -> bool:
@@ -77,7 +85,7 @@ setup(
         "torch==2.14.1", "numpy", "trimesh", "pymcubes", "opencv-python-headless", "lpips",
         "torchmetrics", "tqdm", "pyyaml", "scipy", "plyfile", "matplotlib",
     ],
-    extras_require={"test": ["pytest"], "synthetic": ["mitsuba==3.9.1"]},
+    extras_require=EXTRAS,
     ext_modules=_extensions(),
     cmdclass={"build_ext": cpp_extension.BuildExtension.with_options(use_ninja=True)},
     zip_safe=False,

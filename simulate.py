@@ -5,7 +5,10 @@ See ``fracture_gs.cli.simulate`` (options, exit codes) and SPEC §5.
 """
 import sys
 
-from fracture_gs.cli.simulate import main
-
 if __name__ == "__main__":
+    try:
+        from fracture_gs.cli.simulate import main  # imports torch: a second or two
+    except KeyboardInterrupt:
+        print("interrupted before the first frame was written", file=sys.stderr)
+        sys.exit(130)
     sys.exit(main())

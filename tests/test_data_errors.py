@@ -183,3 +183,118 @@ def test_dtu_skewed_camera_is_refused(tmp_path):
     arrays["world_mat_1"] = shear @ arrays["world_mat_1"]
     np.savez(npz, **arrays)
     assert_fails(tmp_path, "cameras_sphere.npz", "'world_mat_1'", "skew")
+
+
+# ----------------------------------------------------------------------------- unreadable files
+# Issue 15, finding 5: a file without read permission used to escape as a PermissionError
+# traceback (JSON, COLMAP, parts.json) or read as "cannot be decoded" (images via cv2.imread).
+
+
+@pytest.fixture
+def make_unreadable(monkeypatch):
+    """``make_unreadable(path)`` takes the read permission away from ``path``.
+
+    root reads any file whatever its mode, so when the tests run as root ``open`` is also made
+    to refuse that path with the error the kernel gives everybody else.
+    """
+    import builtins
+    import errno
+
+    blocked: set[str] = set()
+    real_open = builtins.open
+
+    def guarded_open(file, *args, **kwargs):
+        if isinstance(file, (str, os.PathLike)) and os.path.abspath(file) in blocked:
+            raise PermissionError(errno.EACCES, "Permission denied", os.fspath(file))
+        return real_open(file, *args, **kwargs)
+
+    def block(path):
+        os.chmod(path, 0)
+        if os.geteuid() == 0:
+            blocked.add(os.path.abspath(path))
+            monkeypatch.setattr(builtins, "open", guarded_open)
+
+    yield block
+    for path in blocked:
+        os.chmod(path, 0o644)
+
+
+UNREADABLE_CASES = {
+    "blender transforms": (lambda root: write_blender(root, rig(2)), "transforms_train.json"),
+    "blender image": (lambda root: write_blender(root, rig(2)), os.path.join("train", "r_1.png")),
+    "colmap cameras.bin": (lambda root: write_colmap(root, rig(2)),
+                           os.path.join("sparse", "0", "cameras.bin")),
+    "colmap images.txt": (lambda root: write_colmap(root, rig(2), binary=False),
+                          os.path.join("sparse", "0", "images.txt")),
+    "colmap mask": (lambda root: write_colmap(root, rig(2), with_masks=True),
+                    os.path.join("masks", "view_00.png.png")),
+    "dtu cameras": (lambda root: write_dtu(root, rig(2)), "cameras_sphere.npz"),
+    "dtu image": (lambda root: write_dtu(root, rig(2)), os.path.join("image", "001.png")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(UNREADABLE_CASES))
+def test_unreadable_file_is_named(tmp_path, case, make_unreadable):
+    write, relative = UNREADABLE_CASES[case]
+    write(str(tmp_path))
+    path = tmp_path / relative
+    make_unreadable(path)
+    assert_fails(tmp_path, f"{path}: cannot read (Permission denied)")
+
+
+def run_data_cli(args, capsys):
+    from fracture_gs.data.__main__ import main
+
+    code = main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_data_cli_unreadable_file_exits_2_with_one_line(tmp_path, make_unreadable, capsys):
+    write_blender(str(tmp_path), rig(2))
+    code, out, _ = run_data_cli([tmp_path], capsys)
+    assert code == 0 and "views      2 of 40x30 pixels" in out
+    image = tmp_path / "train" / "r_0.png"
+    make_unreadable(image)
+    code, out, err = run_data_cli([tmp_path], capsys)
+    assert code == 2 and out == ""
+    assert err == f"error: {image}: cannot read (Permission denied)\n"
+
+
+def test_data_cli_unreadable_parts_file(tmp_path, make_unreadable, capsys):
+    write_blender(str(tmp_path), rig(2))
+    parts = tmp_path / "parts.json"
+    parts.write_text(json.dumps({"format": "fracture_gs/parts-v1",
+                                 "parts": [{"id": 0, "name": "body"}], "rules": []}))
+    code, out, _ = run_data_cli([tmp_path], capsys)
+    assert code == 0 and "parts      body (parts.json)" in out
+    make_unreadable(parts)
+    code, _, err = run_data_cli([tmp_path], capsys)
+    assert code == 2 and err == f"error: {parts}: cannot read (Permission denied)\n"
+
+
+@pytest.mark.parametrize("kind", ["file instead of folder", "folder instead of image",
+                                  "empty image", "empty transforms"])
+def test_data_cli_files_of_the_wrong_kind(tmp_path, kind, capsys):
+    write_blender(str(tmp_path), rig(2))
+    if kind == "file instead of folder":
+        target, expected = tmp_path / "transforms_train.json", "is a file, expected a dataset folder"
+    elif kind == "folder instead of image":
+        os.remove(tmp_path / "transforms_train.json")
+        write_colmap(str(tmp_path), rig(2))
+        target = tmp_path / "images" / "view_01.png"
+        os.remove(target)
+        os.mkdir(target)
+        expected = "is a folder, expected a file"
+    elif kind == "empty image":
+        target = tmp_path / "train" / "r_1.png"
+        target.write_bytes(b"")
+        expected = "empty file, expected an image"
+    else:
+        target = tmp_path / "transforms_train.json"
+        target.write_bytes(b"")
+        expected = "invalid JSON"
+    source = target if kind == "file instead of folder" else tmp_path
+    code, _, err = run_data_cli([source], capsys)
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert err.startswith(f"error: {target}: {expected}"), err

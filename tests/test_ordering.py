@@ -4,7 +4,6 @@ from __future__ import annotations
 import pytest
 import torch
 
-from fracture_gs._backend import compiled_module
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
@@ -51,7 +50,7 @@ def test_bad_shapes_are_refused() -> None:
         spatial_order(torch.zeros(5, 2), torch.zeros(5, dtype=torch.int32), DOMAIN)
 
 
-@pytest.mark.skipif(compiled_module() is None, reason="fracture_gs._C is not built")
+@pytest.mark.extension
 def test_particle_order_does_not_change_the_physics() -> None:
     # The same scene in lattice order and in spatial order: P2G sums a node's contributions in a
     # different order, so results agree to float rounding, not bit for bit.
@@ -80,7 +79,7 @@ def scene_solver(particles: ParticleSet, reorder_every: int) -> CollisionMPM:
                         reorder_every=reorder_every)
 
 
-@pytest.mark.skipif(compiled_module() is None, reason="fracture_gs._C is not built")
+@pytest.mark.extension
 def test_reordering_during_a_run_keeps_the_physics_and_the_input_order() -> None:
     particles = two_bodies()  # lattice order: the first reorder really moves particles
     fixed, moving = scene_solver(particles, 0), scene_solver(particles, 7)
@@ -101,7 +100,7 @@ def test_reordering_during_a_run_keeps_the_physics_and_the_input_order() -> None
     assert fixed.diagnostics()["total_energy"] == pytest.approx(moving.diagnostics()["total_energy"], rel=1e-5)
 
 
-@pytest.mark.skipif(compiled_module() is None, reason="fracture_gs._C is not built")
+@pytest.mark.extension
 def test_checkpoint_across_reorders_continues_bit_identically() -> None:
     particles = two_bodies()
     first = scene_solver(particles, 5)

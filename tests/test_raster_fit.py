@@ -5,7 +5,6 @@ from __future__ import annotations
 import pytest
 import torch
 
-from fracture_gs._backend import compiled_module
 from fracture_gs.render import Camera, rasterize
 
 SIZE = 32
@@ -22,8 +21,7 @@ def _random_gaussians(num: int, seed: int, scale: float) -> dict[str, torch.Tens
             "colors": torch.rand(num, 3, generator=gen)}
 
 
-@pytest.mark.skipif(compiled_module() is None or not hasattr(compiled_module(), "raster_forward"),
-                    reason="fracture_gs._C with raster kernels is not built")
+@pytest.mark.extension("raster_forward")
 def test_fitting_lowers_l1_by_80_percent() -> None:
     camera = Camera(torch.eye(4), SIZE, SIZE, SIZE / 2, SIZE / 2, SIZE, SIZE)
     background = torch.tensor([0.1, 0.1, 0.1])

@@ -172,6 +172,11 @@ def frames_of(out: Path) -> list[dict[str, np.ndarray]]:
     return [load_frame(f) for f in files]
 
 
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+
+
 def assert_same_frames(a: Path, b: Path) -> None:
     fa, fb = frames_of(a), frames_of(b)
     assert len(fa) == len(fb)
@@ -246,18 +251,25 @@ def test_resume_equals_uninterrupted_run(tmp_path: Path, ballistic: None,
     assert code == 0 and "nothing to simulate" in stdout
 
 
+@pytest.mark.parametrize("last_frame", ["missing", "truncated"])
 def test_resume_after_kill_between_checkpoint_and_frame(
-        tmp_path: Path, ballistic: None, capsys: pytest.CaptureFixture[str]) -> None:
+        tmp_path: Path, last_frame: str, ballistic: None,
+        capsys: pytest.CaptureFixture[str]) -> None:
     scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
     straight, killed = tmp_path / "straight", tmp_path / "killed"
     run_main(["--scene", str(scene), "--out", str(straight), "--frames", "5"], capsys)
     run_main(["--scene", str(scene), "--out", str(killed), "--frames", "3"], capsys)
     # the checkpoint of frame 3 is written before frame 3's file: a kill in between leaves
-    # the checkpoint ahead of the frames
-    (killed / "frames" / "frame_00003.npz").unlink()
-    code, _, _ = run_main(["--scene", str(scene), "--out", str(killed), "--frames", "5",
-                           "--resume"], capsys)
-    assert code == 0
+    # the checkpoint ahead of the frames. It holds that frame's exact state, so a resume
+    # rewrites the frame (also when the file was damaged afterwards).
+    frame_3 = killed / "frames" / "frame_00003.npz"
+    if last_frame == "missing":
+        frame_3.unlink()
+    else:
+        _truncate(frame_3)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(killed), "--frames", "5",
+                                "--resume"], capsys)
+    assert code == 0, stderr
     assert_same_frames(straight, killed)
 
 
@@ -310,6 +322,15 @@ def test_blow_up_stops_with_exit_1_and_keeps_frames(
 
 
 # ----------------------------------------------------------------------------- invalid input
+
+
+def wait_for_file(proc: subprocess.Popen[str], path: Path, timeout: float = 120) -> None:
+    """Wait until a running simulate.py has written ``path``."""
+    deadline = time.monotonic() + timeout
+    while not path.exists():
+        assert proc.poll() is None, proc.communicate()[1]
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
 
 
 def _simulate_subprocess(args: list[str], cwd: Path, **kwargs: Any) -> subprocess.Popen[str]:
@@ -469,11 +490,7 @@ def test_real_subprocess_kill_and_resume(tmp_path: Path,
     killed, straight = tmp_path / "killed", tmp_path / "straight"
     proc = _simulate_subprocess(["--scene", str(scene), "--out", str(killed), "--device",
                                  "cpu"], cwd=tmp_path)
-    deadline = time.monotonic() + 120
-    while not (killed / "frames" / "frame_00002.npz").exists():
-        assert proc.poll() is None, proc.communicate()[1]
-        assert time.monotonic() < deadline
-        time.sleep(0.05)
+    wait_for_file(proc, killed / "frames" / "frame_00002.npz")
     proc.send_signal(signal.SIGKILL)
     proc.communicate()
     done = len(frames_of(killed))
@@ -486,3 +503,162 @@ def test_real_subprocess_kill_and_resume(tmp_path: Path,
     assert code == 0, stderr
     assert_same_frames(straight, killed)
     assert not list(killed.rglob(".*.tmp"))
+
+
+# ----------------------------------------------------------------------------- a stranger's input
+# Issue 15, finding 5: each of these used to end in a traceback (exit 1). Now: exit 2, one line
+# on stderr naming the file or key, nothing simulated.
+
+
+def assert_one_line_error(code: int, stderr: str, start: str, *needles: str) -> str:
+    assert code == 2, stderr
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith(start), stderr
+    for needle in needles:
+        assert needle in lines[0], stderr
+    return lines[0]
+
+
+@pytest.mark.parametrize("content,problem", [
+    (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", "not a YAML text file (byte 0 is not UTF-8)"),
+    (b"name: caf\xe9\n", "not a YAML text file (byte 9 is not UTF-8)"),
+    (b"", "the file holds no scene (empty YAML document)"),
+    (b"# only a comment\n", "the file holds no scene (empty YAML document)"),
+], ids=["png", "latin-1", "empty", "comment-only"])
+def test_scene_file_of_the_wrong_kind(tmp_path: Path, content: bytes, problem: str,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "scene.yaml"
+    path.write_bytes(content)
+    code, stdout, stderr = run_main(["--scene", str(path), "--out", str(tmp_path / "out")],
+                                    capsys)
+    assert_one_line_error(code, stderr, f"error: {path}: {problem}")
+    assert stdout == "" and not (tmp_path / "out").exists()
+
+
+def test_scene_is_a_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, stderr = run_main(["--scene", str(tmp_path)], capsys)
+    assert_one_line_error(code, stderr, f"error: {tmp_path}: cannot read (Is a directory)")
+
+
+def test_out_names_an_existing_file(tmp_path: Path, ballistic: None,
+                                    capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    taken = tmp_path / "results.txt"
+    taken.write_text("not a folder\n")
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(taken)], capsys)
+    assert_one_line_error(code, stderr, f"error: --out: '{taken}' is a file, not a folder")
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(taken / "run")], capsys)
+    assert_one_line_error(code, stderr,
+                          f"error: --out: '{taken / 'run'}' cannot be created: '{taken}' is a file")
+    assert taken.read_text() == "not a folder\n"
+
+
+@pytest.mark.parametrize("damaged", ["checkpoint.npz", "particles.npz",
+                                     "frames/frame_00000.npz", "frames/frame_00001.npz"])
+def test_resume_with_a_truncated_file(tmp_path: Path, damaged: str, ballistic: None,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    assert run_main(["--scene", str(scene), "--out", str(out), "--frames", "2"], capsys)[0] == 0
+    _truncate(out / damaged)
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(out), "--frames", "4",
+                                "--resume"], capsys)
+    assert_one_line_error(code, stderr, f"error: --resume: {out / damaged}: cannot be read (",
+                          "damaged", "without --resume")
+
+
+def test_resume_with_a_foreign_checkpoint(tmp_path: Path, ballistic: None,
+                                          capsys: pytest.CaptureFixture[str]) -> None:
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    run_main(["--scene", str(scene), "--out", str(out), "--frames", "2"], capsys)
+    np.savez(out / "checkpoint.npz", weights=np.zeros(3))
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(out), "--resume"], capsys)
+    assert_one_line_error(code, stderr, f"error: --resume: {out / 'checkpoint.npz'}: cannot be "
+                          "read (no 'columns' array)")
+
+
+def _huge_grid_scene() -> dict[str, Any]:
+    scene = tiny_scene()
+    scene["domain"]["grid"] = 4096
+    for obj in scene["objects"]:
+        obj["primitive"]["radius"] = 0.002   # a few thousand particles: only the grid is huge
+    return scene
+
+
+def test_grid_too_large_is_refused_before_allocating(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """2 objects x 4100³ nodes x 11 float32 fields = 5.5 TiB: named, never allocated."""
+    scene = write_scene(tmp_path / "huge.yaml", _huge_grid_scene())
+    code, stdout, stderr = run_main(["--scene", str(scene), "--out", str(tmp_path / "out"),
+                                     "--device", "cpu"], capsys)
+    line = assert_one_line_error(code, stderr, "error: domain.grid: 4096 needs 5.5 TiB of grid "
+                                 "memory (2 grids of about 4100³ nodes), more than the ")
+    assert line.endswith("of free cpu memory; use a coarser grid")
+    assert not (tmp_path / "out").exists()
+
+
+def test_memory_check_names_the_grid_or_the_primitive() -> None:
+    from fracture_gs.config import parse_scene
+    from fracture_gs.mpm.memory import check_scene_memory, grid_memory_bytes
+
+    config = parse_scene(tiny_scene())
+    grid_bytes, n_grids, nodes = grid_memory_bytes(config)
+    # 16 cells + 1 node, padded to blocks of 4: 20³ nodes; mass + momentum + velocity + contact
+    # normal (gradient) + volume = 11 float32 per node and grid (contact fields: 2 objects)
+    assert (n_grids, nodes) == (2, 20 ** 3)
+    assert grid_bytes == 2 * 20 ** 3 * 11 * 4
+    check_scene_memory(config, torch.device("cpu"), available=grid_bytes + 10 ** 6)
+    with pytest.raises(Exception, match=r"^domain\.grid: 16 needs 687\.5 KiB of grid memory"):
+        check_scene_memory(config, torch.device("cpu"), available=grid_bytes - 1)
+    dense = tiny_scene()
+    dense["objects"][1]["primitive"]["particles_per_cell"] = 10 ** 6
+    config = parse_scene(dense)
+    with pytest.raises(Exception, match=r"^objects\[1\]\.primitive: sampling 5\.66e\+07 candidate "
+                                        r"particles at grid 16 \(1000000 per cell\)"):
+        check_scene_memory(config, torch.device("cpu"), available=10 ** 9)
+
+
+def test_write_failure_mid_run_exits_1_with_one_line(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, ballistic: None,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A full disk while writing frame 3: exit 1, the file and the reason, frames 0..2 kept."""
+    import errno
+
+    from fracture_gs.mpm import output as output_module
+    original = output_module.save_npz_atomic
+
+    def disk_full_at_frame_3(path: Path, arrays: Any) -> None:
+        if path.name == "frame_00003.npz":
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        original(path, arrays)
+
+    monkeypatch.setattr(output_module, "save_npz_atomic", disk_full_at_frame_3)
+    scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
+    out = tmp_path / "sim"
+    code, _, stderr = run_main(["--scene", str(scene), "--out", str(out)], capsys)
+    assert code == 1 and "Traceback" not in stderr
+    assert stderr.splitlines() == [f"error: {out / 'frames' / 'frame_00003.npz'}: "
+                                   "No space left on device"]
+    assert len(frames_of(out)) == 3
+
+
+@needs_solver
+def test_ctrl_c_exits_130_with_one_line(tmp_path: Path) -> None:
+    """SIGINT while frames are being computed: exit 130, one line, no traceback, resumable."""
+    scene_dict = tiny_scene()
+    scene_dict["frames"] = 400
+    scene = write_scene(tmp_path / "tiny.yaml", scene_dict)
+    out = tmp_path / "sim"
+    proc = _simulate_subprocess(["--scene", str(scene), "--out", str(out), "--device", "cpu"],
+                                cwd=tmp_path)
+    wait_for_file(proc, out / "frames" / "frame_00001.npz")
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr
+    assert stderr.splitlines() == [f"interrupted; the frames written so far in {out} are valid, "
+                                   "continue with --resume"]
+    assert len(frames_of(out)) >= 2 and not list(out.rglob(".*.tmp"))

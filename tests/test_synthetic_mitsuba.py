@@ -1,4 +1,5 @@
-"""Tests that render with Mitsuba 3 (skipped when it is not installed)."""
+"""Tests that render with Mitsuba 3 (skipped when it is not installed, failed when CI=true:
+see tests/conftest.py)."""
 import json
 import os
 
@@ -7,15 +8,15 @@ import pytest
 import torch
 import trimesh
 
-pytest.importorskip("mitsuba", reason="Mitsuba 3 is an optional extra (pip install mitsuba)")
+from fracture_gs.data.parts import single_part_spec
+from fracture_gs.data.synthetic import cameras, render_mitsuba
+from fracture_gs.data.synthetic.generator import GeneratorSettings, generate_dataset
+from fracture_gs.data.synthetic.objects import PartLook, SyntheticObject
+from fracture_gs.data.synthetic.silhouette import mask_iou, rasterize_silhouette
+from fracture_gs.render.camera import Camera
+from synthetic_checks import silhouette_ious
 
-from fracture_gs.data.parts import single_part_spec  # noqa: E402
-from fracture_gs.data.synthetic import cameras, render_mitsuba  # noqa: E402
-from fracture_gs.data.synthetic.generator import GeneratorSettings, generate_dataset  # noqa: E402
-from fracture_gs.data.synthetic.objects import PartLook, SyntheticObject  # noqa: E402
-from fracture_gs.data.synthetic.silhouette import mask_iou, rasterize_silhouette  # noqa: E402
-from fracture_gs.render.camera import Camera  # noqa: E402
-from synthetic_checks import silhouette_ious  # noqa: E402
+pytestmark = pytest.mark.mitsuba
 
 
 def _sphere_object(center, radius):
@@ -60,3 +61,13 @@ def test_generate_small_dataset_end_to_end(tmp_path):
     assert min(silhouette_ious(out)) >= 0.95  # tiny images: boundary pixels weigh more
     with pytest.raises(FileExistsError, match="already exists"):
         generate_dataset("teapot", out, settings, progress=False)
+    # --force replaces a dataset the generator wrote, and leaves nothing else behind
+    first = json.loads((tmp_path / "teapot" / "generator.json").read_text())
+    (tmp_path / "teapot" / "stale.txt").write_text("from the first run")
+    again = GeneratorSettings(width=40, height=40, n_train=1, n_test=1, spp=4, seed=2,
+                              resolution=32)
+    generate_dataset("teapot", out, again, overwrite=True, progress=False)
+    assert json.loads((tmp_path / "teapot" / "generator.json").read_text())["settings"]["seed"] == 2
+    assert first["settings"]["seed"] == 1
+    assert not (tmp_path / "teapot" / "stale.txt").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["teapot"]   # no .partial / .replaced

@@ -1,12 +1,15 @@
 """``simulate.py``: run a scene through the Collision-MPM solver (SPEC §5).
 
-Exit status: 0 on success, 2 on invalid input (one ``error: <key path>: <problem>`` line on
-stderr, nothing simulated), 1 when the simulation blows up (the frames written so far stay
-valid and ``--resume``-able), 130 when interrupted.
+Exit status: 0 on success, 2 on invalid input (one ``error: <key path or file>: <problem>``
+line on stderr, nothing simulated: bad scene keys, unreadable files, a grid too large for the
+memory, an ``--out`` that is a file, a damaged run for ``--resume``), 1 when the run fails
+(blow-up, out of memory, a write error; the frames written so far stay valid and
+``--resume``-able), 130 when interrupted.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -18,8 +21,9 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
-from fracture_gs.mpm.output import (SimulationOutput, diagnostics_row, load_frame,
-                                    particle_arrays)
+from fracture_gs.mpm.memory import check_scene_memory
+from fracture_gs.mpm.output import (CHECKPOINT_FILE, OutputError, SimulationOutput,
+                                    diagnostics_row, load_frame, particle_arrays, read_npz)
 from fracture_gs.mpm.scene import BuiltScene, build_scene
 from fracture_gs.mpm.types import SimulationBlowUp
 
@@ -123,8 +127,28 @@ def first_difference(a: Any, b: Any, path: str = "") -> str | None:
     return None if a == b else (path or "<scene>")
 
 
+def check_output_folder(out_dir: Path) -> None:
+    """InvalidInput unless ``out_dir`` is a folder or can be created as one (checked before
+    anything is built, so a bad ``--out`` costs nothing)."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InvalidInput("--out", f"'{out_dir}' is a file, not a folder")
+    existing = out_dir
+    while not existing.exists() and existing.parent != existing:
+        existing = existing.parent
+    if existing.exists() and not existing.is_dir():
+        raise InvalidInput("--out", f"'{out_dir}' cannot be created: '{existing}' is a file")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise InvalidInput("--out", f"'{out_dir}' cannot be written: no write permission on "
+                           f"'{existing}'")
+
+
+def _resume_error(exc: OutputError) -> SceneError:
+    return SceneError("--resume", f"{exc}; start the run again without --resume")
+
+
 def check_resumable(output: SimulationOutput, config: SceneConfig, built: BuiltScene) -> None:
-    """SceneError unless the folder holds a run of the same scene and particles."""
+    """SceneError unless the folder holds a run of the same scene and particles whose files
+    can be read."""
     if not output.checkpoint_path.exists() or not output.scene_path.exists():
         raise SceneError("--resume", f"{output.root} holds no run to resume "
                          f"(no {output.checkpoint_path.name})")
@@ -137,11 +161,12 @@ def check_resumable(output: SimulationOutput, config: SceneConfig, built: BuiltS
     if diff is not None:
         raise SceneError("--resume", f"the scene differs from {output.scene_path} at '{diff}'")
     try:
-        with np.load(output.particles_path) as saved:
-            now = particle_arrays(built.particles)
-            same = all(np.array_equal(saved[k], now[k]) for k in ("rest_x", "mass", "obj_id"))
-    except (OSError, KeyError, ValueError):
-        same = False
+        saved = read_npz(output.particles_path)
+    except OutputError as exc:
+        raise _resume_error(exc) from None
+    now = particle_arrays(built.particles)
+    same = all(k in saved and saved[k].shape == now[k].shape and np.array_equal(saved[k], now[k])
+               for k in ("rest_x", "mass", "obj_id"))
     if not same:
         raise SceneError("--resume", f"the particles differ from {output.particles_path} "
                          "(model files changed?)")
@@ -180,10 +205,18 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
         output.write_frame(0, solver.state_in_input_order(), row, solver.state_dict())
         return 0
     output.remove_temporaries()
-    checkpoint = output.load_checkpoint()
-    solver.load_state_dict(checkpoint.solver_state)
+    try:
+        checkpoint = output.load_checkpoint()
+        output.check_frames(checkpoint.frame)
+    except OutputError as exc:
+        raise _resume_error(exc) from None
+    try:
+        solver.load_state_dict(checkpoint.solver_state)
+    except (KeyError, ValueError, TypeError, RuntimeError) as exc:
+        raise _resume_error(OutputError(f"{output.checkpoint_path}: does not hold this scene's "
+                                        f"solver state ({exc})")) from None
     output.write_scene(config.to_dict())
-    if not output.frame_path(checkpoint.frame).exists():  # killed between checkpoint and frame
+    if not output.frame_complete(checkpoint.frame):  # killed between checkpoint and frame
         output.write_frame(checkpoint.frame, solver.state_in_input_order(), checkpoint.rows[-1],
                            solver.state_dict())
     return checkpoint.frame
@@ -197,9 +230,8 @@ def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int
     p0 = np.array([col["px"][0], col["py"][0], col["pz"][0]])
     p1 = np.array([col["px"][-1], col["py"][-1], col["pz"][-1]])
     start = load_frame(output.frame_path(0))
-    with np.load(output.particles_path) as constant:
-        scale = float(np.sum(constant["mass"].astype(np.float64) *
-                             np.linalg.norm(start["v"].astype(np.float64), axis=1)))
+    mass = read_npz(output.particles_path)["mass"].astype(np.float64)
+    scale = float(np.sum(mass * np.linalg.norm(start["v"].astype(np.float64), axis=1)))
     steps, dts = col["steps"][1:], col["dt_min"][1:]
     return RunSummary(
         out_dir=output.root, first_frame=min(first, done), last_frame=done,
@@ -223,11 +255,13 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     from tqdm import tqdm
 
     log = log if log is not None else sys.stdout
+    check_output_folder(Path(out_dir))
+    check_backend(device, backend)
+    check_scene_memory(config, device)
     built = build_scene(config, device)
     output = SimulationOutput(out_dir, built.object_names)
     if resume:
         check_resumable(output, config, built)
-    check_backend(device, backend)
     solver = create_solver(built, device, backend)
     done = _open_run(config, built, output, solver, resume)
 
@@ -268,9 +302,23 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     return summary
 
 
+def _interrupted_message(out_dir: Path | None) -> str:
+    if out_dir is not None and (out_dir / CHECKPOINT_FILE).exists():
+        return (f"interrupted; the frames written so far in {out_dir} are valid, continue "
+                "with --resume")
+    return "interrupted before the first frame was written"
+
+
+def _os_error_message(exc: OSError) -> str:
+    """One line for an OSError: the file it concerns and the reason."""
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or exc}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = parse_args(argv)
+    out_dir: Path | None = Path(args.out) if args.out else None
     try:
         if args.frames is not None and args.frames < 1:
             raise InvalidInput("--frames", f"{args.frames} is not >= 1")
@@ -278,18 +326,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.frames is not None:
             config = replace(config, frames=args.frames)
         device = resolve_device(args.device)
-        out_dir = Path(args.out) if args.out else DEFAULT_OUTPUT_ROOT / config.name
+        out_dir = out_dir if out_dir is not None else DEFAULT_OUTPUT_ROOT / config.name
         run_simulation(config, out_dir, device=device, backend=args.backend,
                        resume=args.resume)
-    except (SceneError, InvalidInput) as exc:
+    except (SceneError, InvalidInput, OutputError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except SimulationBlowUp as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("interrupted; the frames written so far are valid, continue with --resume",
+    except (MemoryError, torch.OutOfMemoryError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else "no memory left"
+        print(f"error: out of memory ({reason}); use a coarser domain.grid or fewer particles",
               file=sys.stderr)
+        return 1
+    except OSError as exc:  # writing the output failed (disk full, folder removed, ...)
+        print(f"error: {_os_error_message(exc)}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(_interrupted_message(out_dir), file=sys.stderr)
         return 130
     return 0
 

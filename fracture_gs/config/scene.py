@@ -251,11 +251,14 @@ def read_yaml(path: str | os.PathLike[str]) -> Any:
     """Parse a YAML file (``5.0e5`` is a float); errors name the file."""
     path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_bytes().decode("utf-8")
     except FileNotFoundError:
         raise SceneError(str(path), "file not found") from None
     except OSError as exc:
         raise SceneError(str(path), f"cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(str(path), f"not a YAML text file (byte {exc.start} is not UTF-8)") \
+            from None
     try:
         return yaml.load(text, Loader=_SceneLoader)  # noqa: S506 - SafeLoader subclass
     except yaml.YAMLError as exc:
@@ -269,6 +272,8 @@ def load_scene(path: str | os.PathLike[str]) -> SceneConfig:
     """Read and validate a scene file; raises :class:`SceneError` naming the bad key."""
     path = Path(path)
     data = read_yaml(path)
+    if data is None:
+        raise SceneError(str(path), "the file holds no scene (empty YAML document)")
     return parse_scene(data, base_dir=path.parent, default_name=path.stem, source=path)
 
 

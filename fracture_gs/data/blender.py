@@ -1,7 +1,6 @@
 """Blender / NeRF-synthetic loader: ``transforms_{train,test}.json`` + RGBA PNGs (SPEC §3)."""
 from __future__ import annotations
 
-import json
 import math
 import os
 
@@ -11,6 +10,7 @@ from fracture_gs.data.cameras import (make_camera,
                                       opengl_camera_to_world_to_opencv_world_to_camera,
                                       require_finite)
 from fracture_gs.data.dataset import Dataset, DatasetError
+from fracture_gs.data.files import read_json
 from fracture_gs.data.images import find_image_file, read_image
 from fracture_gs.data.views import assemble_dataset
 
@@ -19,13 +19,7 @@ SPLIT_FILES = {"train": ("transforms_train.json",), "test": ("transforms_test.js
 
 
 def _read_json(path: str) -> dict:
-    if not os.path.isfile(path):
-        raise DatasetError(f"{path}: file not found")
-    try:
-        with open(path, encoding="utf-8") as handle:
-            content = json.load(handle)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise DatasetError(f"{path}: invalid JSON: {error}") from None
+    content = read_json(path)
     if not isinstance(content, dict):
         raise DatasetError(f"{path}: expected a JSON object at the top level")
     return content

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fracture_gs.data.dataset import DatasetError
+from fracture_gs.data.files import read_bytes, read_text
 
 # model name -> (model id, number of parameters)
 CAMERA_MODELS: dict[str, tuple[int, int]] = {
@@ -57,8 +58,7 @@ class _BinaryReader:
 
     def __init__(self, path: str) -> None:
         self.path = path
-        with open(path, "rb") as handle:
-            self.data = handle.read()
+        self.data = read_bytes(path)
         self.offset = 0
 
     def read(self, fmt: str) -> tuple:
@@ -134,9 +134,9 @@ def read_points3d_binary(path: str) -> tuple[np.ndarray, np.ndarray]:
 
 def _text_lines(path: str) -> list[tuple[int, str]]:
     """(line number, content) of the non-comment lines, empty lines kept."""
-    with open(path, encoding="utf-8", errors="replace") as handle:
-        return [(number, line.strip()) for number, line in enumerate(handle, 1)
-                if not line.lstrip().startswith("#")]
+    text = read_text(path, errors="replace")
+    return [(number, line.strip()) for number, line in enumerate(text.splitlines(), 1)
+            if not line.lstrip().startswith("#")]
 
 
 def read_cameras_text(path: str) -> dict[int, ColmapCamera]:

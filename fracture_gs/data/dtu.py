@@ -2,28 +2,18 @@
 from __future__ import annotations
 
 import os
-import zipfile
 
 import numpy as np
 
 from fracture_gs.data.cameras import decompose_projection, make_camera, require_finite
 from fracture_gs.data.dataset import Dataset, DatasetError
+from fracture_gs.data.files import read_npz
 from fracture_gs.data.images import list_image_files, read_image
 from fracture_gs.data.views import assemble_dataset, split_indices
 
 CAMERAS_FILE = "cameras_sphere.npz"
 SKEW_TOLERANCE_PX = 0.5  # largest image shift a dropped skew K[0,1] may cause (in pixels)
 SCALE_MAT_TOLERANCE = 1e-6
-
-
-def _load_npz(path: str) -> dict[str, np.ndarray]:
-    if not os.path.isfile(path):
-        raise DatasetError(f"{path}: file not found")
-    try:
-        with np.load(path) as archive:
-            return {key: archive[key] for key in archive.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as error:
-        raise DatasetError(f"{path}: cannot be read as an .npz archive: {error}") from None
 
 
 def _matrix(arrays: dict[str, np.ndarray], key: str, path: str) -> np.ndarray:
@@ -49,7 +39,7 @@ def load_dtu(source_path: str, split: str = "train", downscale: int = 1,
     ``scale_mat`` maps the normalised frame back to the original world.
     """
     cameras_path = os.path.join(source_path, CAMERAS_FILE)
-    arrays = _load_npz(cameras_path)
+    arrays = read_npz(cameras_path)
     image_folder = os.path.join(source_path, "image")
     if not os.path.isdir(image_folder):
         raise DatasetError(f"{image_folder}: folder not found")

@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 
 from fracture_gs.data.dataset import DatasetError
+from fracture_gs.data.files import os_reason, read_bytes
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp")
 MAX_AUTO_WIDTH = 1600
@@ -27,9 +28,12 @@ def _to_unit_float(pixels: np.ndarray, path: str) -> np.ndarray:
 
 
 def _read_raw(path: str) -> np.ndarray:
-    if not os.path.isfile(path):
+    if not os.path.exists(path):
         raise DatasetError(f"{path}: image file not found")
-    pixels = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    data = read_bytes(path)  # read here: cv2.imread hides why a file cannot be read
+    if not data:
+        raise DatasetError(f"{path}: empty file, expected an image")
+    pixels = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if pixels is None or pixels.size == 0:
         raise DatasetError(f"{path}: cannot be decoded as an image")
     return pixels
@@ -103,7 +107,11 @@ def find_image_file(stem_path: str) -> str | None:
 
 def list_image_files(folder: str) -> list[str]:
     """Sorted image files directly inside ``folder``."""
-    names = [name for name in os.listdir(folder)
+    try:
+        entries = os.listdir(folder)
+    except OSError as exc:
+        raise DatasetError(f"{folder}: cannot list the folder ({os_reason(exc)})") from None
+    names = [name for name in entries
              if os.path.splitext(name)[1].lower() in IMAGE_EXTENSIONS
              and os.path.isfile(os.path.join(folder, name))]
     return [os.path.join(folder, name) for name in sorted(names)]

@@ -12,6 +12,8 @@ from fracture_gs.data.dtu import CAMERAS_FILE, load_dtu
 def detect_format(source_path: str) -> str:
     """``"blender"`` (transforms_train.json), ``"colmap"`` (sparse/0/) or ``"dtu"``
     (cameras_sphere.npz), checked in that order."""
+    if os.path.exists(source_path) and not os.path.isdir(source_path):
+        raise DatasetError(f"{source_path}: is a file, expected a dataset folder")
     if not os.path.isdir(source_path):
         raise DatasetError(f"{source_path}: dataset folder not found")
     if os.path.isfile(os.path.join(source_path, "transforms_train.json")):

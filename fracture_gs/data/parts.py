@@ -27,6 +27,8 @@ from typing import Any, Mapping, Sequence, Union
 
 import numpy as np
 
+from fracture_gs.data.files import read_json
+
 PART_SPEC_FORMAT = "fracture_gs/parts-v1"
 
 
@@ -177,14 +179,7 @@ def part_spec_from_dict(content: Mapping[str, Any], source: str = "parts") -> Pa
 def load_part_spec(path: str | os.PathLike) -> PartSpec:
     """Read a ``parts.json`` file."""
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise PartSpecError(f"{path}: file not found")
-    try:
-        with open(path, encoding="utf-8") as handle:
-            content = json.load(handle)
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise PartSpecError(f"{path}: invalid JSON: {error}") from None
-    return part_spec_from_dict(content, source=path)
+    return part_spec_from_dict(read_json(path, PartSpecError), source=path)
 
 
 def save_part_spec(spec: PartSpec, path: str | os.PathLike,

@@ -21,6 +21,8 @@ import csv
 import io
 import math
 import os
+import zipfile
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -134,10 +136,54 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     atomic_write(path, lambda handle: handle.write(data))
 
 
+class OutputError(ValueError):
+    """A file of an output folder that cannot be used: missing, unreadable, truncated or not
+    written by ``simulate.py``. The message is one line naming the file."""
+
+
+def _damaged(path: Path, reason: str) -> OutputError:
+    return OutputError(f"{path}: cannot be read ({reason}); the file is damaged or was not "
+                       "written by simulate.py")
+
+
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file written by this module; :class:`OutputError` if the file
+    is missing, unreadable, truncated or not an arrays archive."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            magic = handle.read(4)
+    except FileNotFoundError:
+        raise OutputError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise OutputError(f"{path}: is a folder, expected a file") from None
+    except OSError as exc:
+        raise _damaged(path, exc.strerror or type(exc).__name__) from None
+    if not magic.startswith(b"PK"):
+        raise _damaged(path, "empty file" if not magic else "not an .npz archive")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise _damaged(path, str(exc).splitlines()[0] if str(exc) else type(exc).__name__) \
+            from None
+
+
+def check_npz_complete(path: Path) -> None:
+    """OutputError unless ``path`` is a complete zip archive (its central directory, at the
+    end of the file, is read; the arrays are not)."""
+    try:
+        with zipfile.ZipFile(path):
+            pass
+    except FileNotFoundError:
+        raise OutputError(f"{path}: file not found") from None
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise _damaged(path, str(exc)) from None
+
+
 def load_frame(path: str | Path) -> dict[str, np.ndarray]:
-    """Read one frame file into a dict of arrays."""
-    with np.load(path) as data:
-        return {k: data[k] for k in data.files}
+    """Read one frame file into a dict of arrays (:class:`OutputError` if it is damaged)."""
+    return read_npz(path)
 
 
 # ----------------------------------------------------------------------------- checkpoint
@@ -241,17 +287,38 @@ class SimulationOutput:
 
     # reading back
     def load_checkpoint(self) -> Checkpoint:
-        """Read ``checkpoint.npz``; FileNotFoundError if there is none."""
-        with np.load(self.checkpoint_path, allow_pickle=False) as data:
-            columns = [str(c) for c in data["columns"]]
-            if columns != self.columns:
-                raise ValueError(f"{self.checkpoint_path}: diagnostics columns {columns} differ "
-                                 f"from the scene's {self.columns}")
-            solver_state = {key[len(_SOLVER_PREFIX):]: data[key] for key in data.files
-                            if key.startswith(_SOLVER_PREFIX)}
-            frame = int(data["frame"])
-            self.rows = [list(map(float, r)) for r in data["rows"]]
+        """Read ``checkpoint.npz``; :class:`OutputError` if it is missing, damaged or does not
+        belong to this scene (other diagnostics columns)."""
+        data = read_npz(self.checkpoint_path)
+        missing = [key for key in ("columns", "frame", "rows") if key not in data]
+        if missing:
+            raise _damaged(self.checkpoint_path, f"no '{missing[0]}' array")
+        columns = [str(c) for c in data["columns"]]
+        if columns != self.columns:
+            raise OutputError(f"{self.checkpoint_path}: diagnostics columns {columns} differ "
+                              f"from the scene's {self.columns}")
+        rows = data["rows"]
+        frame = int(data["frame"])
+        if rows.ndim != 2 or rows.shape[0] != frame + 1 or rows.shape[1] != len(columns):
+            raise _damaged(self.checkpoint_path, f"{rows.shape} diagnostics rows for frame {frame}")
+        solver_state = {key[len(_SOLVER_PREFIX):]: value for key, value in data.items()
+                        if key.startswith(_SOLVER_PREFIX)}
+        self.rows = [list(map(float, r)) for r in rows]
         return Checkpoint(frame=frame, solver_state=solver_state, rows=self.rows)
+
+    def frame_complete(self, frame: int) -> bool:
+        """Whether the file of ``frame`` exists and is a complete archive."""
+        try:
+            check_npz_complete(self.frame_path(frame))
+        except OutputError:
+            return False
+        return True
+
+    def check_frames(self, last: int) -> None:
+        """OutputError unless frames 0..last-1 are present and complete (frame ``last`` may be
+        missing: a resume rewrites it from the checkpoint)."""
+        for frame in range(last):
+            check_npz_complete(self.frame_path(frame))
 
     def read_scene(self) -> Any:
         from fracture_gs.config.scene import read_yaml

@@ -103,6 +103,15 @@ def _half_extent(primitive: PrimitiveConfig) -> np.ndarray:
     return np.array([primitive.radius, primitive.radius, 0.5 * primitive.height])
 
 
+def primitive_lattice(primitive: PrimitiveConfig, dx: float, scale: float
+                      ) -> tuple[float, np.ndarray]:
+    """Sub-cell edge ``h = dx / ppc^(1/3)`` and the (3,) sub-cells per axis of the box around
+    the primitive that :func:`sample_primitive` fills: one candidate particle per sub-cell."""
+    spacing = dx / primitive.particles_per_cell ** (1.0 / 3.0)
+    half = scale * _half_extent(primitive)
+    return spacing, np.ceil(2.0 * half / spacing).astype(np.int64)
+
+
 def sample_primitive(primitive: PrimitiveConfig, dx: float, scale: float,
                      rng: np.random.Generator) -> ObjectParticles:
     """Jittered-uniform particles of the primitive scaled by ``scale`` (object frame, centred).
@@ -112,9 +121,7 @@ def sample_primitive(primitive: PrimitiveConfig, dx: float, scale: float,
     in each sub-cell; those inside the shape are kept. ``rest_volume = h³ = dx³ / ppc``.
     Particles closer than ``h`` to the boundary are marked ``is_surface``.
     """
-    spacing = dx / primitive.particles_per_cell ** (1.0 / 3.0)
-    half = scale * _half_extent(primitive)
-    counts = np.ceil(2.0 * half / spacing).astype(np.int64)
+    spacing, counts = primitive_lattice(primitive, dx, scale)
     axes = [(np.arange(n) - 0.5 * (n - 1)) * spacing for n in counts]  # centred lattice
     centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     x = centres + rng.uniform(-0.5, 0.5, size=centres.shape) * spacing

@@ -6,7 +6,8 @@ import json
 import os
 import sys
 
-from fracture_gs.data.synthetic.generator import GeneratorSettings, generate_dataset
+from fracture_gs.data.synthetic.generator import (GeneratorSettings, check_output_folder,
+                                                  generate_dataset)
 from fracture_gs.data.synthetic.objects import OBJECT_NAMES
 
 
@@ -28,7 +29,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--grid", type=int, default=256,
                         help="marching-cubes cells along the object's longest side")
-    parser.add_argument("--force", action="store_true", help="replace an existing output")
+    parser.add_argument("--force", action="store_true",
+                        help="replace an existing dataset that this generator wrote (a folder "
+                             "with generator.json); other folders are never replaced")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser.parse_args(argv)
 
@@ -38,9 +41,12 @@ def main(argv: list[str] | None = None) -> int:
     settings = GeneratorSettings(args.width, args.height, args.n_train, args.n_test, args.spp,
                                  args.seed, args.grid)
     names = OBJECT_NAMES if args.object == "all" else (args.object,)
+    outs = [os.path.join(args.out, name) if args.object == "all" else args.out for name in names]
     try:
-        for name in names:
-            out = os.path.join(args.out, name) if args.object == "all" else args.out
+        settings.validate()
+        for out in outs:  # refuse before rendering anything
+            check_output_folder(out, args.force)
+        for name, out in zip(names, outs):
             summary = generate_dataset(name, out, settings, overwrite=args.force,
                                        progress=not args.quiet)
             print(f"{name}: wrote {out} " + json.dumps(

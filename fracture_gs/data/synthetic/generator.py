@@ -9,7 +9,10 @@ Output folder::
     generator.json                                 settings and timings of the run
 
 Everything is written to ``<out>.partial`` first and renamed at the end, so an interrupted run
-leaves no half-written dataset behind.
+leaves no half-written dataset behind. An existing ``out`` is only ever replaced (``--force``)
+when it is a dataset this generator wrote, i.e. a folder with its ``generator.json``; a folder
+holding anything else is refused before any work starts, so ``--out data/ --force`` cannot
+delete ``data/``.
 """
 from __future__ import annotations
 
@@ -27,6 +30,10 @@ from fracture_gs.data.synthetic.cameras import NERF_CAMERA_ANGLE_X, sphere_poses
 from fracture_gs.data.synthetic.objects import SyntheticObject, build_object
 from fracture_gs.data.synthetic.render_mitsuba import build_scene, render_view, require_mitsuba
 from fracture_gs.data.synthetic.textures import linear_to_srgb
+
+
+GENERATOR_FILE = "generator.json"            # marks a folder as a generated dataset
+PARTIAL_MARKER = ".generator_partial.json"   # marks a staging folder of an unfinished run
 
 
 @dataclass(frozen=True)
@@ -58,21 +65,78 @@ def vertex_colors_srgb8(obj: SyntheticObject) -> np.ndarray:
     return colors
 
 
+def _is_empty_folder(path: str) -> bool:
+    return os.path.isdir(path) and not os.path.islink(path) and not os.listdir(path)
+
+
+def check_output_folder(out: str, overwrite: bool) -> None:
+    """FileExistsError unless ``out`` may receive a new dataset.
+
+    It may when it does not exist; with ``overwrite`` (``--force``) also when it is an empty
+    folder or a folder this generator wrote (it holds ``generator.json``). Anything else (a
+    file, a link, a folder with other content) is never replaced. The staging folder
+    ``<out>.partial`` may only hold an earlier run's leftovers (its marker file).
+    """
+    partial = partial_folder(out)
+    if os.path.lexists(partial) and not _is_empty_folder(partial) and \
+            not os.path.isfile(os.path.join(partial, PARTIAL_MARKER)):
+        raise FileExistsError(f"{partial}: exists and is not a staging folder of this generator; "
+                              "move it away or choose another --out")
+    _check_target(out, overwrite)
+
+
+def _check_target(out: str, overwrite: bool) -> None:
+    """The ``out`` half of :func:`check_output_folder`."""
+    if not os.path.lexists(out):
+        return
+    if os.path.islink(out) or not os.path.isdir(out):
+        raise FileExistsError(f"{out}: exists and is not a folder; choose another --out")
+    if not _is_empty_folder(out) and not os.path.isfile(os.path.join(out, GENERATOR_FILE)):
+        raise FileExistsError(f"{out}: exists and was not written by this generator (no "
+                              f"{GENERATOR_FILE}); --force only replaces generated datasets, so "
+                              "choose another --out (e.g. a sub-folder) or remove it yourself")
+    if not overwrite:
+        raise FileExistsError(f"{out}: already exists (use --force to replace it)")
+
+
+def partial_folder(out: str) -> str:
+    """The staging folder a run writes before renaming it to ``out``."""
+    return os.path.normpath(out) + ".partial"
+
+
+def _replace_folder(partial: str, out: str, overwrite: bool) -> None:
+    """Move the finished ``partial`` to ``out``; a replaced dataset is deleted only after the
+    new one is in place."""
+    _check_target(out, overwrite)  # the run took minutes: look again before deleting
+    if os.path.lexists(out) and not _is_empty_folder(out):
+        retired = f"{os.path.normpath(out)}.replaced-{os.getpid()}"
+        os.replace(out, retired)
+        os.replace(partial, out)
+        shutil.rmtree(retired)
+    else:
+        os.replace(partial, out)  # over an empty folder, too
+
+
 def generate_dataset(name: str, out: str, settings: GeneratorSettings = GeneratorSettings(),
                      overwrite: bool = False, progress: bool = True) -> dict:
-    """Build, render and write one object's dataset into ``out``; returns the run summary."""
+    """Build, render and write one object's dataset into ``out``; returns the run summary.
+
+    Raises FileExistsError (before any work) when ``out`` exists and is not replaceable:
+    see :func:`check_output_folder`.
+    """
     settings.validate()
-    if os.path.exists(out) and not overwrite:
-        raise FileExistsError(f"{out}: already exists (use --force to replace it)")
+    check_output_folder(out, overwrite)
     require_mitsuba()
     started = time.perf_counter()
     obj = build_object(name, settings.resolution, settings.seed)
     mesh_seconds = time.perf_counter() - started
     scene = build_scene(obj)
-    partial = out.rstrip("/") + ".partial"
-    shutil.rmtree(partial, ignore_errors=True)
+    partial = partial_folder(out)
+    if os.path.lexists(partial):
+        shutil.rmtree(partial)  # an interrupted run's staging folder (checked above)
     try:
         writer.ensure_dir(partial)
+        writer.write_json(os.path.join(partial, PARTIAL_MARKER), {"object": name})
         train_poses, test_poses = sphere_poses(settings.n_train, settings.n_test, settings.seed)
         render_started = time.perf_counter()
         views = [("train", i, pose) for i, pose in enumerate(train_poses)]
@@ -104,10 +168,9 @@ def generate_dataset(name: str, out: str, settings: GeneratorSettings = Generato
                    "render_seconds": round(render_seconds, 2),
                    "seconds_per_view": round(render_seconds / len(views), 3),
                    "total_seconds": round(time.perf_counter() - started, 2)}
-        writer.write_json(os.path.join(partial, "generator.json"), summary)
-        if os.path.exists(out):
-            shutil.rmtree(out)
-        os.replace(partial, out)
+        writer.write_json(os.path.join(partial, GENERATOR_FILE), summary)
+        os.remove(os.path.join(partial, PARTIAL_MARKER))
+        _replace_folder(partial, out, overwrite)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)
         raise

@@ -6,7 +6,11 @@ as vectorised point-in-triangle tests. Used to check rendered masks against ``gt
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+
+from fracture_gs.render.camera import Camera
 
 
 def rasterize_silhouette(pixels: np.ndarray, faces: np.ndarray, width: int, height: int,
@@ -62,3 +66,21 @@ def mask_iou(first: np.ndarray, second: np.ndarray) -> float:
     """Intersection over union of two boolean masks (1.0 when both are empty)."""
     union = np.logical_or(first, second).sum()
     return 1.0 if union == 0 else float(np.logical_and(first, second).sum() / union)
+
+
+def mask_mesh_ious(cameras: Sequence[Camera], masks: Sequence[np.ndarray], vertices: np.ndarray,
+                   faces: np.ndarray) -> list[float]:
+    """IoU of each view's (mask > 0.5) with the ray-cast silhouette of the mesh through that
+    view's camera. ValueError when the mesh is not entirely in front of a camera."""
+    import torch
+
+    points = torch.as_tensor(np.asarray(vertices), dtype=torch.float64)
+    ious = []
+    for index, (camera, mask) in enumerate(zip(cameras, masks)):
+        uv, depth = camera.project(points)
+        if float(depth.min()) <= 0:
+            raise ValueError(f"view {index}: the mesh is not entirely in front of the camera")
+        silhouette = rasterize_silhouette(uv.numpy(), np.asarray(faces), camera.width,
+                                          camera.height)
+        ious.append(mask_iou(np.asarray(mask) > 0.5, silhouette))
+    return ious
