@@ -34,18 +34,10 @@ import torch
 
 from fracture_gs.cli.render import resolve_views
 from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
+from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.camera import Camera
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.sim import Simulation
-
-
-def onset_frame(sim: Simulation) -> int | None:
-    """First frame with more than max(10, 0.1 % of N) fractured particles (SPEC §7)."""
-    threshold = max(10, 0.001 * len(sim.particles))
-    for index in sim.frames:
-        if int(sim.load_frame(index).fractured.sum()) > threshold:
-            return index
-    return None
 
 
 def silhouette(points: torch.Tensor, camera: Camera, spacing: float,
@@ -83,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     sim = Simulation.open(args.sim)
     settings = FPGOSettings(min_fragment=args.min_fragment)
     scene = SceneGaussians.from_simulation(sim, settings=settings)
-    onset = onset_frame(sim)
+    onset = fracture_window_from_simulation(sim.root).onset_frame
     result: dict = {"sim": str(args.sim), "particles": len(sim.particles), "views": args.views,
                     "size": args.size, "dilate_spacings": args.dilate, "onset": onset,
                     "gaussians_no_fpgo": scene.num_gaussians, "frames": []}

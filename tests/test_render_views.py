@@ -96,3 +96,37 @@ def test_frame_selection(three_frames: Simulation):
     (sim.root / "frames" / "frame_00001.npz").unlink()
     with pytest.raises(SimulationError, match="frame_00001.npz is missing"):
         Simulation.open(sim.root).select_frames("0:3")
+
+
+def test_train_and_test_views_are_the_dataset_cameras_moved_with_the_object(tmp_path: Path):
+    from fracture_gs.cli.render import resolve_views
+    from fracture_gs.data import load_dataset
+    from render_scenes import write_model
+
+    fixture = Path(__file__).parent / "data" / "synthetic_fixture"
+    points, surface = lattice_block((0.04, 0.04, 0.04))
+    write_model(tmp_path / "model", points, surface)
+    (tmp_path / "model" / "cfg_args").write_text(
+        f"Namespace(sh_degree=1, source_path='{fixture}', model_path='{tmp_path / 'model'}')")
+    transform = {"scale": 0.3, "rotate_deg": [0.0, 0.0, 40.0], "translate": [0.5, 0.5, 0.4]}
+    rest = (np.array(transform["translate"]) + 0.3 * points @ rotation_matrix_xyz((0.0, 0.0, 40.0)).T
+            ).astype(np.float32)
+    count = points.shape[0]
+    arrays = {"rest_x": rest, "obj_id": np.zeros(count, np.int32), "is_surface": surface,
+              "gaussian_index": np.where(surface, np.cumsum(surface) - 1, -1),
+              "rest_volume": np.full(count, 1e-6, np.float32)}
+    sim = Simulation.open(write_sim(tmp_path / "sim", block_scene(tmp_path / "model", transform),
+                                    arrays, identity_frames(rest, 1)))
+    views = resolve_views("train", sim, sim.frames, None)
+    cameras = load_dataset(str(fixture), split="train").cameras
+    assert [v.name for v in views] == [f"train_r_{i}" for i in range(len(cameras))]
+    # a model-frame point seen by the dataset camera lands on the same pixel in the scene
+    model_points = torch.tensor(points[:20], dtype=torch.float32)
+    scene_points = torch.tensor(rest[:20])
+    for view, camera in zip(views, cameras):
+        assert torch.allclose(view.camera.project(scene_points)[0], camera.project(model_points)[0],
+                              atol=2e-3)
+    assert len(resolve_views("test", sim, sim.frames, (48, 48))) == 1
+    (tmp_path / "model" / "cfg_args").write_text("Namespace(sh_degree=1)")
+    with pytest.raises(ViewSpecError, match="cfg_args: no source_path"):
+        resolve_views("train", sim, sim.frames, None)
