@@ -8,12 +8,12 @@ import scipy.sparse.csgraph
 import torch
 from scipy.spatial import cKDTree
 
-from fracture_gs._backend import compiled_module
 from fracture_gs.fracture import reference
 from fracture_gs.fracture.ops import deform_gaussians, lens_ellipsoids
 from fracture_gs.fracture.spatial import component_roots, connected_components, knn_within
 
-needs_cpp = pytest.mark.skipif(compiled_module() is None, reason="fracture_gs._C is not built")
+needs_cpp = pytest.mark.extension("spatial_knn_within", "spatial_component_roots",
+                                   "fracture_deform_gaussians", "fracture_lens_ellipsoids")
 BACKENDS = ["reference", pytest.param("cpp", marks=needs_cpp)]
 
 

@@ -9,11 +9,10 @@ import math
 import pytest
 import torch
 
-from fracture_gs._backend import compiled_module
 from fracture_gs.fracture.ops import lens_ellipsoids
 
-BACKENDS = ["reference", pytest.param("cpp", marks=pytest.mark.skipif(
-    compiled_module() is None, reason="fracture_gs._C is not built"))]
+BACKENDS = ["reference",
+            pytest.param("cpp", marks=pytest.mark.extension("fracture_lens_ellipsoids"))]
 
 
 def lens(ci, ri, cj, rj, backend, k_sigma=2.0):
