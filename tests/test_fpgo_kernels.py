@@ -10,9 +10,11 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.fracture import reference
 from fracture_gs.fracture.ops import deform_gaussians, lens_ellipsoids
-from fracture_gs.fracture.spatial import component_roots, connected_components, knn_within
+from fracture_gs.fracture.spatial import (component_roots, connected_components, k_nearest,
+                                          knn_within, small_component_mask)
 
 needs_cpp = pytest.mark.extension("spatial_knn_within", "spatial_component_roots",
+                                   "spatial_small_component_mask",
                                    "fracture_deform_gaussians", "fracture_lens_ellipsoids")
 BACKENDS = ["reference", pytest.param("cpp", marks=needs_cpp)]
 
@@ -63,6 +65,23 @@ def test_knn_within_kernel_equals_twin_with_groups(k):
     assert (group[index_c[hit]] == query_group[:, None].expand_as(index_c)[hit]).all()
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_k_nearest_is_exact_from_deep_inside_a_shell(backend):
+    # surface samples of a sphere, queried from inside (radius doubling from 0.05 up to the span)
+    generator = torch.Generator().manual_seed(7)
+    shell = torch.nn.functional.normalize(torch.randn(800, 3, generator=generator), dim=1)
+    queries = 0.95 * torch.rand(300, 1, generator=generator) * \
+        torch.nn.functional.normalize(torch.randn(300, 3, generator=generator), dim=1)
+    queries[0] = 0.0                                   # the centre: every point equally far
+    index = k_nearest(shell, queries, 4, 0.05, backend=backend)
+    distance = torch.linalg.norm(shell[index] - queries[:, None], dim=2).double().numpy()
+    expected, _ = cKDTree(shell.double().numpy()).query(queries.double().numpy(), k=4)
+    assert np.allclose(distance, expected, atol=1e-6)
+    assert (index >= 0).all() and (np.diff(distance, axis=1) >= -1e-6).all()
+    with pytest.raises(ValueError, match="k must be"):
+        k_nearest(shell[:3], queries, 4, 0.05, backend=backend)
+
+
 def scipy_components(points: torch.Tensor, radius: float) -> np.ndarray:
     pairs = cKDTree(points.double().numpy()).query_pairs(radius, output_type="ndarray")
     graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
@@ -97,6 +116,48 @@ def test_component_kernel_equals_twin_with_groups_and_is_deterministic():
     for _ in range(3):
         assert torch.equal(component_roots(points, 0.06, group, backend="cpp"), roots_c)
     assert (group[roots_c] == group).all()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("min_size", [1, 2, 8, 10, 12, 270])
+def test_small_component_mask_matches_scipy_component_sizes(backend, min_size):
+    points = clustered_points(3000, seed=5)
+    radius = 0.11   # components of 1..13 scattered points and six blobs of 249..293
+    labels = scipy_components(points, radius)
+    sizes = np.bincount(labels)[labels]
+    assert min_size == 1 or ((sizes < min_size).any() and (sizes >= min_size).any())
+    mask = small_component_mask(points, radius, min_size, backend=backend)
+    assert np.array_equal(mask.numpy(), sizes < min_size)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_small_component_mask_follows_sparse_chains(backend):
+    # chains have 2 neighbours per point (never "core" for min_size 10): sizes must come from the
+    # whole chain, and a short tail hanging off a dense blob belongs to the blob
+    radius = 0.1
+    step = 0.09 * torch.tensor([1.0, 0.0, 0.0])
+    long_chain = torch.arange(12.0)[:, None] * step                       # 12 points: drawn
+    short_chain = torch.arange(9.0)[:, None] * step + torch.tensor([0.0, 1.0, 0.0])  # 9: hidden
+    blob = torch.tensor([0.0, 0.0, 1.0]) + 0.02 * torch.rand(30, 3, generator=torch.Generator().manual_seed(1))
+    tail = blob[:1] + torch.arange(1.0, 4.0)[:, None] * step              # 3 points off the blob
+    points = torch.cat([long_chain, short_chain, blob, tail])
+    mask = small_component_mask(points, radius, 10, backend=backend)
+    expected = torch.zeros(points.shape[0], dtype=torch.bool)
+    expected[12:21] = True
+    assert torch.equal(mask, expected)
+    group = torch.zeros(points.shape[0], dtype=torch.int32)
+    group[6:12] = 1                                   # cut the long chain into 6 + 6: both hidden
+    expected[:12] = True
+    assert torch.equal(small_component_mask(points, radius, 10, group, backend=backend), expected)
+
+
+@needs_cpp
+def test_small_component_kernel_equals_twin_with_groups():
+    points = clustered_points(5000, seed=6)
+    group = (points[:, 1] > 1.0).to(torch.int32)
+    for min_size in (3, 10, 60):
+        assert torch.equal(small_component_mask(points, 0.06, min_size, group, backend="cpp"),
+                           small_component_mask(points, 0.06, min_size, group, backend="reference"))
 
 
 def random_deformations(count: int, seed: int) -> torch.Tensor:

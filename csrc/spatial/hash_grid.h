@@ -12,6 +12,7 @@
 #pragma once
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 
 #include "common/hd.h"
 
@@ -62,12 +63,23 @@ HOST_DEVICE inline float distance2(const float* a, const float* b) {
 // row (k_last - k_first <= 2). Their buckets are consecutive, so the row is one contiguous run of
 // sorted points (two when it wraps around the table); a candidate belongs to the row iff its
 // packed cell lies in [key(ci, cj, k_first), key(ci, cj, k_last)]. Candidates in the cell
-// `skip_key` are visited only from sorted slot `skip_below` + 1 on.
+// `skip_key` are visited only from sorted slot `skip_below` + 1 on. A visitor that returns bool
+// stops the scan by returning true (scan_row then returns true); a void visitor sees every point.
 template <class Visit>
-HOST_DEVICE inline void scan_row(const HashGrid& g, const float* q, float radius2, int ci, int cj,
+HOST_DEVICE inline bool visit_point(Visit& visit, int32_t j, float d2) {
+  if constexpr (std::is_same_v<decltype(visit(j, d2)), bool>) {
+    return visit(j, d2);
+  } else {
+    visit(j, d2);
+    return false;
+  }
+}
+
+template <class Visit>
+HOST_DEVICE inline bool scan_row(const HashGrid& g, const float* q, float radius2, int ci, int cj,
                                  int k_first, int k_last, int64_t skip_key, int64_t skip_below,
                                  Visit& visit) {
-  if (!cell_packable(ci, cj, k_first) || !cell_packable(ci, cj, k_last)) return;
+  if (!cell_packable(ci, cj, k_first) || !cell_packable(ci, cj, k_last)) return false;
   const int64_t key_lo = cell_key(ci, cj, k_first), key_hi = key_lo + (k_last - k_first);
   const uint32_t first = bucket_of(g, ci, cj, k_first);
   const uint32_t last = (first + (uint32_t)(k_last - k_first)) & g.table_mask;
@@ -81,20 +93,24 @@ HOST_DEVICE inline void scan_row(const HashGrid& g, const float* q, float radius
       if (key < key_lo || key > key_hi) continue;  // another cell sharing these buckets
       if (key == skip_key && s <= skip_below) continue;
       const float d2 = distance2(g.sorted_xyz + 3 * (int64_t)s, q);
-      if (d2 <= radius2) visit(g.sorted_point[s], d2);
+      if (d2 <= radius2 && visit_point(visit, g.sorted_point[s], d2)) return true;
     }
+  return false;
 }
 
 // Calls visit(j, d2) for every grid point j with |x_j - q|^2 <= radius2 (radius <= cell): the
-// 27 cells around q as 9 rows (ci + di, cj + dj, ck - 1 .. ck + 1).
+// 27 cells around q as 9 rows (ci + di, cj + dj, ck - 1 .. ck + 1), the row through q's own
+// cell first (it holds the most points within radius); a bool visitor returning true ends the
+// search early. Visitors that see every point get results independent of the order.
 template <class Visit>
 HOST_DEVICE inline void for_each_within(const HashGrid& g, const float* q, float radius2,
                                         Visit& visit) {
+  constexpr int kOrder[3] = {0, -1, 1};
   int c[3];
   cell_of(g, q, c);
-  for (int di = -1; di <= 1; ++di)
-    for (int dj = -1; dj <= 1; ++dj)
-      scan_row(g, q, radius2, c[0] + di, c[1] + dj, c[2] - 1, c[2] + 1, -1, -1, visit);
+  for (int di : kOrder)
+    for (int dj : kOrder)
+      if (scan_row(g, q, radius2, c[0] + di, c[1] + dj, c[2] - 1, c[2] + 1, -1, -1, visit)) return;
 }
 
 // Every pair of grid points within radius exactly once: called for each sorted slot s, it visits
@@ -180,6 +196,37 @@ struct UniteVisit {
   int32_t self;
   Ops* ops;
   HOST_DEVICE void operator()(int32_t j, float) {
+    if (group != nullptr && group[j] != group[self]) return;
+    uf_unite(parent, self, j, *ops);
+  }
+};
+
+// Small-fragment search (only components below a size matter): a point with at least `cap`
+// neighbours (same group) lies in a component of at least cap + 1 points — a "core" point. The
+// count stops as soon as it reaches cap, so dense regions cost a few candidates per point.
+struct CapCountVisit {
+  const int32_t* group;  // may be null
+  int32_t self;
+  int32_t cap;
+  int32_t count = 0;
+  HOST_DEVICE bool operator()(int32_t j, float) {
+    if (j == self) return false;
+    if (group != nullptr && group[j] != group[self]) return false;
+    return ++count >= cap;
+  }
+};
+
+// Unites a non-core point with every neighbour (core or not). Every edge of a component without
+// core points is then seen, and every non-core point of a component with one reaches a core
+// point through non-core points — so these partial components decide "small or not" exactly.
+template <class Ops>
+struct UniteAllVisit {
+  int32_t* parent;
+  const int32_t* group;  // may be null
+  int32_t self;
+  Ops* ops;
+  HOST_DEVICE void operator()(int32_t j, float) {
+    if (j == self) return;
     if (group != nullptr && group[j] != group[self]) return;
     uf_unite(parent, self, j, *ops);
   }

@@ -155,6 +155,41 @@ Tensor component_roots(const Tensor& points, const OptTensor& group, double radi
   return labels.to(torch::kInt64);
 }
 
+// (N,) bool: points in a component (radius graph, same group) of fewer than min_size points,
+// from the core / partial union-find of spatial_kernels.h (no full labelling of large bodies).
+Tensor small_component_mask(const Tensor& points, const OptTensor& group, double radius,
+                            int64_t min_size) {
+  check_points(points, "points");
+  TORCH_CHECK(min_size >= 1 && min_size < (int64_t(1) << 31), "min_size must be >= 1, got ",
+              min_size);
+  const int64_t n = points.size(0);
+  const int32_t* gp = int_ptr(group, n, points, "group");
+  if (min_size == 1 || n == 0) return torch::zeros({n}, points.options().dtype(torch::kBool));
+  const auto iopt = points.options().dtype(torch::kInt32);
+  Tensor parent = torch::empty({n}, iopt), labels = torch::empty({n}, iopt);
+  Tensor core = torch::empty({n}, points.options().dtype(torch::kUInt8));
+  const BuiltGrid built = build_grid(points, radius);
+  const int32_t cap = (int32_t)(min_size - 1);
+  if (points.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    spatial::small_components_cuda(built.grid, gp, n, (float)radius, cap,
+                                   parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
+                                   labels.data_ptr<int32_t>(), current_cuda_stream());
+#endif
+  } else {
+    spatial::small_components_cpu(built.grid, gp, n, (float)radius, cap,
+                                  parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
+                                  labels.data_ptr<int32_t>());
+  }
+  const Tensor label = labels.to(torch::kInt64);
+  const Tensor is_core = core.to(torch::kBool);
+  const Tensor cores = torch::zeros({n}, iopt).index_add_(0, label, core.to(torch::kInt32));
+  const Tensor sizes = torch::bincount(label, {}, n);
+  return is_core.logical_not()
+      .logical_and(cores.index_select(0, label).eq(0))
+      .logical_and(sizes.index_select(0, label).lt(min_size));
+}
+
 }  // namespace
 
 void register_spatial(pybind11::module& m) {
@@ -162,6 +197,8 @@ void register_spatial(pybind11::module& m) {
         "k nearest points within a radius on a uniform hash grid (see fracture_gs/fracture/spatial.py)");
   m.def("spatial_component_roots", &component_roots,
         "Connected components of the radius graph: smallest index of each point's component");
+  m.def("spatial_small_component_mask", &small_component_mask,
+        "Points in components of the radius graph with fewer than min_size points");
 }
 
 }  // namespace fgs

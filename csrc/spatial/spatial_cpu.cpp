@@ -90,5 +90,28 @@ void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points,
   for (int64_t i = 0; i < num_points; ++i) labels[i] = uf_find(parent, (int32_t)i, ops);
 }
 
+void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
+                          int32_t cap, int32_t* parent, uint8_t* core, int32_t* labels) {
+  const float radius2 = radius * radius;
+  CpuAtomicOps ops;
+#pragma omp parallel for schedule(dynamic, 256)
+  for (int64_t s = 0; s < num_points; ++s) {  // bucket order: neighbouring queries share cells
+    const int32_t i = g.sorted_point[s];
+    parent[i] = i;
+    CapCountVisit count{group, i, cap};
+    for_each_within(g, g.sorted_xyz + 3 * s, radius2, count);
+    core[i] = count.count >= cap ? 1 : 0;
+  }
+#pragma omp parallel for schedule(dynamic, 256)
+  for (int64_t s = 0; s < num_points; ++s) {
+    const int32_t i = g.sorted_point[s];
+    if (core[i]) continue;
+    UniteAllVisit<CpuAtomicOps> visit{parent, group, i, &ops};
+    for_each_within(g, g.sorted_xyz + 3 * s, radius2, visit);
+  }
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < num_points; ++i) labels[i] = uf_find(parent, (int32_t)i, ops);
+}
+
 }  // namespace spatial
 }  // namespace fgs

@@ -81,6 +81,28 @@ __global__ void label_kernel(int64_t num, int32_t* parent, int32_t* labels) {
   labels[i] = uf_find(parent, (int32_t)i, ops);
 }
 
+__global__ void core_kernel(HashGrid g, const int32_t* group, int64_t num, float radius,
+                            int32_t cap, int32_t* parent, uint8_t* core) {
+  const int64_t s = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;  // bucket order
+  if (s >= num) return;
+  const int32_t i = g.sorted_point[s];
+  parent[i] = i;
+  CapCountVisit count{group, i, cap};
+  for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, count);
+  core[i] = count.count >= cap ? 1 : 0;
+}
+
+__global__ void unite_non_core_kernel(HashGrid g, const int32_t* group, int64_t num, float radius,
+                                      const uint8_t* core, int32_t* parent) {
+  const int64_t s = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
+  if (s >= num) return;
+  const int32_t i = g.sorted_point[s];
+  if (core[i]) return;
+  CudaAtomicOps ops;
+  UniteAllVisit<CudaAtomicOps> visit{parent, group, i, &ops};
+  for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, visit);
+}
+
 }  // namespace
 
 void bucket_keys_cuda(const HashGrid& g, const float* points, int64_t num_points, int64_t* keys,
@@ -106,6 +128,18 @@ void components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points
   const cudaStream_t s = (cudaStream_t)stream;
   init_parent_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(num_points, parent);
   unite_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(g, group, num_points, radius, parent);
+  label_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(num_points, parent, labels);
+}
+
+void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points,
+                           float radius, int32_t cap, int32_t* parent, uint8_t* core,
+                           int32_t* labels, void* stream) {
+  if (num_points == 0) return;
+  const cudaStream_t s = (cudaStream_t)stream;
+  core_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(g, group, num_points, radius, cap,
+                                                          parent, core);
+  unite_non_core_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(g, group, num_points, radius,
+                                                                    core, parent);
   label_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(num_points, parent, labels);
 }
 

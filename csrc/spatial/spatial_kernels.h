@@ -27,6 +27,13 @@ void knn_within_cpu(const HashGrid& g, const int32_t* point_group,
 // same set.
 void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
                     int32_t* parent, int32_t* labels);
+// Small fragments without the full component labelling: core (N) = 1 where a point has at least
+// `cap` neighbours (counting stops there), then non-core points are united with all their
+// neighbours; labels (N) = the root of each point in that partial union-find. A point lies in a
+// component of fewer than cap + 1 points iff it is not core and no core point shares its label
+// (the binding turns this into the mask). parent (N) is scratch.
+void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
+                          int32_t cap, int32_t* parent, uint8_t* core, int32_t* labels);
 
 // ---- CUDA (raw device pointers; stream is a cudaStream_t passed as void*) ---------------
 #ifdef FGS_WITH_CUDA
@@ -39,6 +46,9 @@ void knn_within_cuda(const HashGrid& g, const int32_t* point_group,
                      float* out_distance, void* stream);
 void components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
                      int32_t* parent, int32_t* labels, void* stream);
+void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points,
+                           float radius, int32_t cap, int32_t* parent, uint8_t* core,
+                           int32_t* labels, void* stream);
 #endif
 
 }  // namespace spatial

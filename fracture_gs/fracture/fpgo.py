@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Callable
 import torch
 
 from fracture_gs.fracture.ops import LensEllipsoids, lens_ellipsoids
-from fracture_gs.fracture.spatial import component_roots, knn_within
+from fracture_gs.fracture.spatial import knn_within, small_component_mask
 
 if TYPE_CHECKING:  # pragma: no cover
     from fracture_gs.render.frame_gaussians import FrameGaussians
@@ -113,9 +113,8 @@ def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings:
         if not bool(active_objects[o]) or rows.numel() == 0:
             continue
         radius = settings.dc_factor * float(particles.object_spacing[o])
-        roots = component_roots(x.index_select(0, rows), radius, backend=backend)
-        sizes = torch.bincount(roots, minlength=rows.numel())
-        hidden[rows] = sizes[roots] < settings.min_fragment
+        hidden[rows] = small_component_mask(x.index_select(0, rows), radius,
+                                            settings.min_fragment, backend=backend)
     return hidden
 
 

@@ -110,6 +110,14 @@ def component_roots(points: torch.Tensor, group: torch.Tensor | None,
         labels = hooked
 
 
+def small_component_mask(points: torch.Tensor, group: torch.Tensor | None, radius: float,
+                         min_size: int) -> torch.Tensor:
+    """Twin of ``spatial_small_component_mask``: points whose component has < min_size points."""
+    roots = component_roots(points, group, radius)
+    sizes = torch.bincount(roots, minlength=points.shape[0])
+    return sizes[roots] < min_size
+
+
 def polar_rotation(F: torch.Tensor) -> torch.Tensor:
     """Rotation of the polar decomposition of F (…,3,3) with det +1: U Vᵀ of the SVD with the
     smallest singular direction flipped when det(U Vᵀ) < 0 (the signed SVD of the kernels)."""

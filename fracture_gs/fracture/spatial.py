@@ -52,6 +52,32 @@ def knn_within(points: torch.Tensor, queries: torch.Tensor, radius: float, k: in
     return reference.knn_within(*args, radius, int(k))
 
 
+def k_nearest(points: torch.Tensor, queries: torch.Tensor, k: int, start_radius: float,
+              backend: str = "auto") -> torch.Tensor:
+    """(Q, k) int64: the k nearest ``points`` of every query (exact, ties by index), for points
+    that may lie far away — e.g. surface samples seen from deep inside a body, the worst case of
+    a k-d tree. :func:`knn_within` runs with ``start_radius``, then with twice the radius for the
+    queries that found fewer than k, until the radius spans the points' bounding box.
+    1 <= k <= min(16, number of points)."""
+    points, queries = _points(points, "points"), _points(queries, "queries")
+    if not 1 <= k <= min(16, points.shape[0]):
+        raise ValueError(f"k must be in 1..min(16, {points.shape[0]} points), got {k}")
+    radius = _check_radius(start_radius)
+    lower = torch.minimum(points.min(0).values, queries.min(0).values)
+    upper = torch.maximum(points.max(0).values, queries.max(0).values)
+    span = float(torch.linalg.norm(upper - lower)) * 1.01 + 1e-6
+    result = torch.full((queries.shape[0], k), -1, dtype=torch.int64, device=queries.device)
+    pending = torch.arange(queries.shape[0], device=queries.device)
+    while pending.numel() > 0:
+        radius = min(radius, span)            # at the span every point is within reach
+        index, _ = knn_within(points, queries.index_select(0, pending), radius, k, backend=backend)
+        found = index[:, k - 1] >= 0
+        result[pending[found]] = index[found]
+        pending = pending[~found]
+        radius *= 2.0
+    return result
+
+
 def component_roots(points: torch.Tensor, radius: float, group: torch.Tensor | None = None,
                     backend: str = "auto") -> torch.Tensor:
     """(N,) int64: for every point, the smallest index in its connected component of the graph
@@ -61,6 +87,24 @@ def component_roots(points: torch.Tensor, radius: float, group: torch.Tensor | N
     if use_compiled(points.device, backend):
         return compiled_module().spatial_component_roots(points, _int32(group), radius)
     return reference.component_roots(points, _int32(group), radius)
+
+
+def small_component_mask(points: torch.Tensor, radius: float, min_size: int,
+                         group: torch.Tensor | None = None, backend: str = "auto") -> torch.Tensor:
+    """(N,) bool: points whose connected component (points linked at distance <= ``radius``,
+    and of the same ``group``) has fewer than ``min_size`` points.
+
+    The compiled kernel never labels large bodies: a point with ``min_size - 1`` neighbours is
+    in a large component (its count stops there), and only the other points are united with
+    their neighbours; the twin labels every component (:func:`component_roots`)."""
+    points = _points(points, "points")
+    radius = _check_radius(radius)
+    if min_size < 1:
+        raise ValueError(f"min_size must be >= 1, got {min_size}")
+    if use_compiled(points.device, backend):
+        return compiled_module().spatial_small_component_mask(points, _int32(group), radius,
+                                                              int(min_size))
+    return reference.small_component_mask(points, _int32(group), radius, int(min_size))
 
 
 def connected_components(x: torch.Tensor, radius: float, group: torch.Tensor | None = None,

@@ -37,6 +37,7 @@ from fracture_gs.config.scene import ObjectConfig
 from fracture_gs.fracture.fpgo import (GAUSSIAN_COLUMNS, FPGOSettings, FPGOStats,
                                        FractureParticles, apply_fpgo)
 from fracture_gs.fracture.ops import deform_gaussians
+from fracture_gs.fracture.spatial import k_nearest
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, rgb_to_sh_dc, write_ply
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render.camera import Camera
@@ -216,14 +217,19 @@ def _flat_table(sim: Simulation, index: int, rows: np.ndarray) -> _ObjectTable:
 def _interpolated_appearance(rest_x: np.ndarray, table: _ObjectTable, queries: np.ndarray,
                              k: int) -> tuple[np.ndarray, np.ndarray]:
     """Inverse-distance opacity and SH of the k nearest drawn Gaussians (rest configuration)."""
-    from scipy.spatial import cKDTree
-
     if queries.size == 0:
         return np.zeros(0), np.zeros((0,) + table.sh.shape[1:], np.float32)
     centres = rest_x[table.driver] + table.rest_offset
     k = min(k, centres.shape[0])
-    distance, nearest = cKDTree(centres).query(rest_x[queries], k=k)
-    distance, nearest = distance.reshape(queries.size, k), nearest.reshape(queries.size, k)
+    if k <= 16:   # hash grid: a k-d tree of surface samples is slow from deep inside the body
+        nearest = k_nearest(torch.from_numpy(centres), torch.from_numpy(rest_x[queries]), k,
+                            2.0 * table.spacing).numpy()
+        distance = np.linalg.norm(centres[nearest] - rest_x[queries][:, None], axis=2)
+    else:
+        from scipy.spatial import cKDTree
+
+        distance, nearest = cKDTree(centres).query(rest_x[queries], k=k)
+        distance, nearest = distance.reshape(queries.size, k), nearest.reshape(queries.size, k)
     weight = 1.0 / np.maximum(distance, 1e-12)
     weight /= weight.sum(axis=1, keepdims=True)
     opacity = (weight * table.opacity[nearest]).sum(axis=1)
