@@ -134,13 +134,22 @@ def main(argv: list[str] | None = None) -> int:
         result[f"mean_band_hole_fraction_{label}"] = round(float(np.mean([r[f"band_hole_fraction_{label}"] for r in rows])), 6)
     print(json.dumps(result, indent=1))
     if args.markdown:
-        print("| frame | fractured | FPGO | FPGO, lenses not exclusive | no FPGO |", file=sys.stderr)
-        print("|---|---|---|---|---|", file=sys.stderr)
-        for r in rows:
-            print(f"| {r['frame']} | {r['fractured']} | {100 * r['hole_fraction_fpgo']:.3f} % | "
-                  f"{100 * r['hole_fraction_fpgo_no_exclusive']:.3f} % | "
-                  f"{100 * r['hole_fraction_no_fpgo']:.3f} % |", file=sys.stderr)
+        print(markdown_table(rows), file=sys.stderr)
     return 0
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """The README table: hole fractions in the closed and in the plain dilated silhouette."""
+    lines = ["| frame | fractured | closed: FPGO | closed: FPGO, lenses not exclusive | "
+             "closed: no FPGO | dilated: FPGO | dilated: no FPGO |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['frame']} | {r['fractured']} | {100 * r['hole_fraction_fpgo']:.2f} % | "
+                     f"{100 * r['hole_fraction_fpgo_no_exclusive']:.2f} % | "
+                     f"{100 * r['hole_fraction_no_fpgo']:.2f} % | "
+                     f"{100 * r['band_hole_fraction_fpgo']:.2f} % | "
+                     f"{100 * r['band_hole_fraction_no_fpgo']:.2f} % |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -189,6 +189,11 @@ HOST_DEVICE inline void uf_unite(int32_t* parent, int32_t a, int32_t b, Ops& ops
   }
 }
 
+// Unites `self` with every neighbour it is shown (same group). With for_each_forward_pair every
+// edge is seen once; the small-fragment search instead shows each non-core point all its
+// neighbours (for_each_within): every edge of a component without core points is then seen, and
+// every non-core point of a component with one reaches a core point through non-core points, so
+// these partial components decide "small or not" exactly.
 template <class Ops>
 struct UniteVisit {
   int32_t* parent;
@@ -196,6 +201,7 @@ struct UniteVisit {
   int32_t self;
   Ops* ops;
   HOST_DEVICE void operator()(int32_t j, float) {
+    if (j == self) return;
     if (group != nullptr && group[j] != group[self]) return;
     uf_unite(parent, self, j, *ops);
   }
@@ -213,22 +219,6 @@ struct CapCountVisit {
     if (j == self) return false;
     if (group != nullptr && group[j] != group[self]) return false;
     return ++count >= cap;
-  }
-};
-
-// Unites a non-core point with every neighbour (core or not). Every edge of a component without
-// core points is then seen, and every non-core point of a component with one reaches a core
-// point through non-core points — so these partial components decide "small or not" exactly.
-template <class Ops>
-struct UniteAllVisit {
-  int32_t* parent;
-  const int32_t* group;  // may be null
-  int32_t self;
-  Ops* ops;
-  HOST_DEVICE void operator()(int32_t j, float) {
-    if (j == self) return;
-    if (group != nullptr && group[j] != group[self]) return;
-    uf_unite(parent, self, j, *ops);
   }
 };
 

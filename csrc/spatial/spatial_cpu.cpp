@@ -106,7 +106,7 @@ void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_p
   for (int64_t s = 0; s < num_points; ++s) {
     const int32_t i = g.sorted_point[s];
     if (core[i]) continue;
-    UniteAllVisit<CpuAtomicOps> visit{parent, group, i, &ops};
+    UniteVisit<CpuAtomicOps> visit{parent, group, i, &ops};
     for_each_within(g, g.sorted_xyz + 3 * s, radius2, visit);
   }
 #pragma omp parallel for schedule(static)

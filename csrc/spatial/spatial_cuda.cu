@@ -99,7 +99,7 @@ __global__ void unite_non_core_kernel(HashGrid g, const int32_t* group, int64_t 
   const int32_t i = g.sorted_point[s];
   if (core[i]) return;
   CudaAtomicOps ops;
-  UniteAllVisit<CudaAtomicOps> visit{parent, group, i, &ops};
+  UniteVisit<CudaAtomicOps> visit{parent, group, i, &ops};
   for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, visit);
 }
 
