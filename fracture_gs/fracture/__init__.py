@@ -6,8 +6,9 @@ frame's Gaussians into the ones to draw.
 """
 from fracture_gs.fracture.fpgo import FPGOSettings, FPGOStats, FractureParticles, apply_fpgo
 from fracture_gs.fracture.ops import LensEllipsoids, deform_gaussians, lens_ellipsoids
-from fracture_gs.fracture.spatial import component_roots, connected_components, knn_within
+from fracture_gs.fracture.spatial import (component_roots, connected_components, k_nearest,
+                                          knn_within, small_component_mask)
 
 __all__ = ["FPGOSettings", "FPGOStats", "FractureParticles", "LensEllipsoids", "apply_fpgo",
-           "component_roots", "connected_components", "deform_gaussians", "knn_within",
-           "lens_ellipsoids"]
+           "component_roots", "connected_components", "deform_gaussians", "k_nearest",
+           "knn_within", "lens_ellipsoids", "small_component_mask"]
