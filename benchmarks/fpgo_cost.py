@@ -40,7 +40,10 @@ def timed_frame(scene: SceneGaussians, frame, cameras, background: torch.Tensor,
     raster_ms = (time.perf_counter() - tick) * 1e3
     return {"gaussians_ms": gaussians_ms, "raster_ms": raster_ms,
             "total_ms": gaussians_ms + raster_ms, "count": len(gaussians),
-            "fpgo_ms": gaussians.stats.milliseconds if gaussians.stats is not None else 0.0}
+            "fpgo_ms": gaussians.stats.milliseconds if gaussians.stats is not None else 0.0,
+            "detail_ms": dict(gaussians.stats.detail_ms) if gaussians.stats is not None else {},
+            "lenses": gaussians.stats.lens_gaussians if gaussians.stats is not None else 0,
+            "interior": gaussians.stats.interior_gaussians if gaussians.stats is not None else 0}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -84,7 +87,9 @@ def main(argv: list[str] | None = None) -> int:
                "fpgo_ms": round(best[True]["total_ms"], 1),
                "fpgo_pass_ms": round(best[True]["fpgo_ms"], 1),
                "raster_no_fpgo_ms": round(best[False]["raster_ms"], 1),
-               "raster_fpgo_ms": round(best[True]["raster_ms"], 1)}
+               "raster_fpgo_ms": round(best[True]["raster_ms"], 1),
+               "fpgo_detail_ms": {k: round(v, 1) for k, v in best[True]["detail_ms"].items()},
+               "lens_gaussians": best[True]["lenses"], "interior_gaussians": best[True]["interior"]}
         row["added"] = round(row["fpgo_ms"] / row["no_fpgo_ms"] - 1.0, 3)
         rows.append(row)
         print(f"frame {index}: {row['no_fpgo_ms']:.0f} ms without FPGO, {row['fpgo_ms']:.0f} ms "
@@ -105,6 +110,9 @@ def main(argv: list[str] | None = None) -> int:
               "fpgo_pass_ms": summary("fpgo_pass_ms"),
               "raster_no_fpgo_ms": summary("raster_no_fpgo_ms"),
               "raster_fpgo_ms": summary("raster_fpgo_ms"),
+              "fpgo_detail_ms_median": {
+                  part: round(statistics.median(r["fpgo_detail_ms"].get(part, 0.0) for r in rows), 1)
+                  for part in rows[0]["fpgo_detail_ms"]},
               "added_median_of_frames": summary("added")["median"],
               "added_of_means": round(fpgo["mean"] / no_fpgo["mean"] - 1.0, 3),
               "rows": rows}
