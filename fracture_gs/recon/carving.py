@@ -1,0 +1,220 @@
+"""Free-space carving of the visual hull with multi-view stereo depth (first part of the
+photometric refinement).
+
+Silhouettes cannot see a concavity (a bowl's cavity), but the images can: a pixel that shows
+a textured surface point in several views proves that the ray to it is empty. For every
+reference view (``reference_stride``-th view) a plane sweep finds the depth of each masked
+pixel: the neighbour views are warped onto fronto-parallel planes by homographies (OpenCV)
+and compared with the reference by normalised cross-correlation over small windows (the best
+2 of the neighbours count, which tolerates occlusion). A depth is kept where the correlation
+is high (``ncc_threshold``) and where it is geometrically consistent (its 3D point lands
+within 1.5 voxels of the depth that at least ``consistent_views`` other reference views
+measured). A grid node inside the hull is carved when at least ``votes`` reference views see
+it more than ``margin_voxels`` in front of their measured surface and at most half as many
+see it at that surface. The carved solid is turned back into a signed distance field
+(Euclidean distance transforms, lightly smoothed) around the carved region; elsewhere the
+hull's sub-voxel distances are kept.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import torch
+from scipy import ndimage
+
+from fracture_gs.data.cameras import resized_camera
+from fracture_gs.data.dataset import Dataset
+from fracture_gs.recon.grid import VoxelGrid
+from fracture_gs.render.camera import Camera
+
+LUMINANCE = np.array([0.299, 0.587, 0.114], dtype=np.float32)
+
+
+@dataclass
+class CarveSettings:
+    reference_stride: int = 2       # every n-th training view gets a depth map
+    downscale: int = 2              # image downscale for the sweep
+    neighbours: int = 3             # views compared with each reference
+    window: int = 7                 # NCC window (pixels)
+    ncc_threshold: float = 0.9
+    plane_spacing: float = 1.5      # sweep plane spacing, in voxels
+    consistent_views: int = 2       # other depth maps that must agree with a depth
+    votes: int = 2                  # views that must see a node as free space
+    margin_voxels: float = 2.0      # how far in front of a measured surface counts as free
+
+
+@dataclass
+class DepthMap:
+    view: int
+    camera: Camera
+    depth: np.ndarray               # (H, W) float32, NaN where unknown
+
+
+def _intrinsics(camera: Camera) -> np.ndarray:
+    """K for OpenCV's pixel convention (pixel centres at integer coordinates)."""
+    return np.array([[camera.fx, 0.0, camera.cx - 0.5], [0.0, camera.fy, camera.cy - 0.5],
+                     [0.0, 0.0, 1.0]])
+
+
+def _box(image: np.ndarray, window: int) -> np.ndarray:
+    return cv2.boxFilter(image, -1, (window, window), normalize=True,
+                         borderType=cv2.BORDER_REFLECT)
+
+
+def _directions(dataset: Dataset, centre: np.ndarray) -> np.ndarray:
+    offsets = dataset.camera_centers().double().numpy() - centre
+    return offsets / np.linalg.norm(offsets, axis=1, keepdims=True)
+
+
+def sweep_depth(reference: int, neighbours: list[int], gray: np.ndarray,
+                cameras: list[Camera], mask: np.ndarray, planes: np.ndarray,
+                settings: CarveSettings) -> np.ndarray:
+    """Winner-take-all plane-sweep depth (H, W) of one view, NaN where not confident."""
+    height, width = gray.shape[1:]
+    world_to_camera = [c.world_to_camera.double().numpy() for c in cameras]
+    ref = gray[reference]
+    window = settings.window
+    ref_mean = _box(ref, window)
+    ref_var = _box(ref * ref, window) - ref_mean * ref_mean
+    inverse = np.linalg.inv(_intrinsics(cameras[reference]))
+    scores = np.empty((len(neighbours), len(planes), height, width), dtype=np.float32)
+    for slot, other in enumerate(neighbours):
+        relative = world_to_camera[other] @ np.linalg.inv(world_to_camera[reference])
+        rotation, translation = relative[:3, :3], relative[:3, 3]
+        for index, depth in enumerate(planes):
+            homography = _intrinsics(cameras[other]) @ (
+                rotation + np.outer(translation, [0.0, 0.0, 1.0 / depth])) @ inverse
+            warped = cv2.warpPerspective(gray[other], homography, (width, height),
+                                         flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            warped_mean = _box(warped, window)
+            warped_var = _box(warped * warped, window) - warped_mean * warped_mean
+            covariance = _box(ref * warped, window) - ref_mean * warped_mean
+            scores[slot, index] = covariance / np.sqrt(np.maximum(ref_var * warped_var, 1e-6))
+    keep = min(2, len(neighbours))
+    best_of = np.sort(scores, axis=0)[-keep:].mean(axis=0)
+    depth = planes[best_of.argmax(axis=0)]
+    confident = (best_of.max(axis=0) > settings.ncc_threshold) & mask & (ref_var > 1e-4)
+    return np.where(confident, depth, np.nan).astype(np.float32)
+
+
+def _project(points: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixel column, row (indices of the pixel containing the point) and camera depth."""
+    world_to_camera = camera.world_to_camera.double().numpy()
+    local = points @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    depth = local[:, 2]
+    safe = np.where(depth > 1e-9, depth, 1e-9)
+    column = np.floor(camera.fx * local[:, 0] / safe + camera.cx).astype(np.int64)
+    row = np.floor(camera.fy * local[:, 1] / safe + camera.cy).astype(np.int64)
+    return column, row, depth
+
+
+def _lookup(depth_map: DepthMap, column: np.ndarray, row: np.ndarray) -> np.ndarray:
+    height, width = depth_map.depth.shape
+    inside = (column >= 0) & (column < width) & (row >= 0) & (row < height)
+    values = np.full(len(column), np.nan, dtype=np.float64)
+    values[inside] = depth_map.depth[row[inside], column[inside]]
+    return values
+
+
+def consistent_depths(maps: list[DepthMap], directions: np.ndarray, voxel: float,
+                      settings: CarveSettings) -> list[DepthMap]:
+    """Keep the depths whose 3D points agree with ``consistent_views`` nearby depth maps."""
+    filtered = []
+    for current in maps:
+        rows, columns = np.nonzero(np.isfinite(current.depth))
+        depth = current.depth[rows, columns].astype(np.float64)
+        camera = current.camera
+        local = np.stack([(columns + 0.5 - camera.cx) / camera.fx * depth,
+                          (rows + 0.5 - camera.cy) / camera.fy * depth, depth], axis=1)
+        camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
+        points = local @ camera_to_world[:3, :3].T + camera_to_world[:3, 3]
+        others = sorted((m for m in maps if m is not current),
+                        key=lambda m: -float(directions[m.view] @ directions[current.view]))
+        agree = np.zeros(len(depth), dtype=np.int32)
+        for other in others[:settings.neighbours + 1]:
+            column, row, seen_depth = _project(points, other.camera)
+            measured = _lookup(other, column, row)
+            agree += (np.abs(measured - seen_depth) < 1.5 * voxel).astype(np.int32)
+        kept = np.full_like(current.depth, np.nan)
+        good = agree >= settings.consistent_views
+        kept[rows[good], columns[good]] = depth[good]
+        filtered.append(DepthMap(current.view, camera, kept))
+    return filtered
+
+
+def stereo_depth_maps(dataset: Dataset, grid: VoxelGrid,
+                      settings: CarveSettings) -> list[DepthMap]:
+    """Filtered plane-sweep depth maps of the reference views (downscaled cameras)."""
+    scale = max(1, settings.downscale)
+    width, height = max(1, dataset.width // scale), max(1, dataset.height // scale)
+    images = dataset.images.cpu().numpy()
+    gray = np.stack([cv2.resize(image @ LUMINANCE, (width, height), interpolation=cv2.INTER_AREA)
+                     for image in images]).astype(np.float32)
+    masks = np.stack([cv2.resize(mask, (width, height), interpolation=cv2.INTER_AREA)
+                      for mask in dataset.masks.cpu().numpy()]) > 0.5
+    cameras = [resized_camera(c, width, height) for c in dataset.cameras]
+    centre = 0.5 * (grid.lower + grid.upper)
+    directions = _directions(dataset, centre)
+    corners = np.array([[x, y, z] for x in (grid.lower[0], grid.upper[0])
+                        for y in (grid.lower[1], grid.upper[1])
+                        for z in (grid.lower[2], grid.upper[2])])
+    references = list(range(0, len(dataset), max(1, settings.reference_stride)))
+    maps = []
+    for reference in references:
+        order = np.argsort(-(directions @ directions[reference]))
+        neighbours = [int(v) for v in order if v != reference][:settings.neighbours]
+        _, _, corner_depth = _project(corners, cameras[reference])
+        near = max(float(corner_depth.min()), 1e-3)
+        planes = np.arange(near, float(corner_depth.max()), settings.plane_spacing * grid.voxel)
+        if len(planes) < 2 or not neighbours:
+            continue
+        depth = sweep_depth(reference, neighbours, gray, cameras, masks[reference], planes,
+                            settings)
+        maps.append(DepthMap(reference, cameras[reference], depth))
+    return consistent_depths(maps, directions, grid.voxel, settings)
+
+
+def carve_with_depth(sdf: torch.Tensor, grid: VoxelGrid, maps: list[DepthMap],
+                     settings: CarveSettings) -> tuple[torch.Tensor, int]:
+    """The SDF with the free space seen in ``maps`` removed, and the number of carved nodes."""
+    values = sdf.detach().cpu().numpy().astype(np.float32)
+    inside = np.nonzero(values.reshape(-1) < 0)[0]
+    if len(inside) == 0 or not maps:
+        return sdf.clone(), 0
+    positions = grid.node_positions(dtype=torch.float64).reshape(-1, 3).numpy()[inside]
+    margin = settings.margin_voxels * grid.voxel
+    free = np.zeros(len(inside), dtype=np.int32)
+    surface = np.zeros(len(inside), dtype=np.int32)
+    for depth_map in maps:
+        column, row, depth = _project(positions, depth_map.camera)
+        measured = _lookup(depth_map, column, row)
+        known = np.isfinite(measured)
+        free += (known & (depth < measured - margin)).astype(np.int32)
+        surface += (known & (np.abs(depth - measured) <= margin)).astype(np.int32)
+    carve = (free >= settings.votes) & (free > 2 * surface)
+    carved_count = int(carve.sum())
+    if carved_count == 0:
+        return sdf.clone(), 0
+    solid = values < 0
+    solid.reshape(-1)[inside[carve]] = False
+    distance = np.where(solid, 0.5 - ndimage.distance_transform_edt(solid),
+                        ndimage.distance_transform_edt(~solid) - 0.5) * grid.voxel
+    distance = ndimage.gaussian_filter(distance, sigma=0.8)
+    changed = np.zeros(values.shape, dtype=bool)
+    changed.reshape(-1)[inside[carve]] = True
+    near_change = ndimage.binary_dilation(changed, iterations=3)
+    result = np.where(near_change, distance, values).astype(np.float32)
+    return torch.from_numpy(result).to(sdf.device), carved_count
+
+
+def carve_hull(dataset: Dataset, grid: VoxelGrid, sdf: torch.Tensor,
+               settings: CarveSettings | None = None) -> tuple[torch.Tensor, int]:
+    """Depth maps of ``dataset`` and the hull SDF carved with them."""
+    settings = settings or CarveSettings()
+    if len(dataset) < 3:
+        return sdf.clone(), 0
+    maps = stereo_depth_maps(dataset, grid, settings)
+    return carve_with_depth(sdf, grid, maps, settings)

@@ -1,0 +1,459 @@
+"""train.py's pipeline: dataset → SDF → mesh → particles → Gaussians → model folder.
+
+:func:`train` runs the stages in order, timing each (wall and process CPU seconds), and
+writes the model folder described in :mod:`fracture_gs.recon.model_io`. Inputs are checked
+before the folder is created; a problem found later (an empty mesh, a parts file that names
+no particle) removes what the run wrote. The Gaussian stage writes a checkpoint every
+``checkpoint_every`` iterations (the newest one is kept), from which ``start_checkpoint``
+continues.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, TextIO
+
+import numpy as np
+import torch
+import trimesh
+from tqdm import tqdm
+
+from fracture_gs.data import Dataset, DatasetError, load_dataset
+from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
+from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, write_ply
+from fracture_gs.gaussians.model import PARAMETER_NAMES
+from fracture_gs.recon import model_io
+from fracture_gs.recon.errors import ReconstructionError
+from fracture_gs.recon.gaussian_fit import (FitSettings, FitState, evaluate_views,
+                                            fit_gaussians, make_optimizer, new_fit_state)
+from fracture_gs.recon.carving import carve_hull
+from fracture_gs.recon.grid import VoxelGrid
+from fracture_gs.recon.hull import visual_hull
+from fracture_gs.recon.imported import bind_to_nearest, iteration_of, opacity_field_sdf
+from fracture_gs.recon.meshing import extract_mesh
+from fracture_gs.recon.particles import ParticleSet, sample_particles
+from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
+from fracture_gs.recon.timing import StageTimer
+
+PRESETS: dict[str, dict[str, Any]] = {
+    # Sized so that one 400x400, 100-view object finishes in <= 15 minutes on a 2-core CPU.
+    "default": {"resolution": 1, "iterations": 1500, "sdf_res": 128, "sdf_iters": 300,
+                "n_surface": 40_000, "nv": 8, "particle_res": 48, "n_interior": None},
+    # The paper's sizes (App. A.2): 200k surface and 100k interior particles, full images.
+    "paper": {"resolution": 1, "iterations": 30_000, "sdf_res": 256, "sdf_iters": 20_000,
+              "n_surface": 200_000, "nv": 8, "particle_res": None, "n_interior": 100_000},
+}
+NO_MASKS_HINT = ("add a masks/ folder beside images/ (same file names, white = object), or "
+                 "start from a trained 3DGS model with --from-ply <point_cloud.ply> --bbox "
+                 "XMIN YMIN ZMIN XMAX YMAX ZMAX to build the SDF from its opacity field")
+
+
+@dataclass
+class TrainConfig:
+    """Resolved options of one train.py run (3DGS names where 3DGS has the option)."""
+
+    source_path: str
+    model_path: str
+    resolution: int = 1
+    white_background: bool = False
+    iterations: int = 1500
+    sdf_res: int = 128
+    sdf_iters: int = 300
+    n_surface: int = 40_000
+    nv: int = 8
+    particle_res: int | None = 48
+    n_interior: int | None = None
+    parts: str | None = None
+    sh_degree: int = 3
+    device: str = "cpu"
+    seed: int = 0
+    preset: str = "default"
+    min_component: float = 0.005
+    max_offset: float = 0.25
+    from_ply: str | None = None
+    bbox: list[float] | None = None
+    start_checkpoint: str | None = None
+    checkpoint_every: int = 1000
+    save_iterations: list[int] = field(default_factory=list)
+    sdf_rays: int = 1024
+    quiet: bool = False
+
+    def cfg_args(self) -> dict[str, Any]:
+        """What cfg_args records: 3DGS's keys first, then ours."""
+        options = {"sh_degree": self.sh_degree, "source_path": os.path.abspath(self.source_path),
+                   "model_path": self.model_path, "images": "images",
+                   "resolution": self.resolution, "white_background": self.white_background,
+                   "data_device": self.device, "eval": True}
+        options.update({f.name: getattr(self, f.name) for f in fields(self)
+                        if f.name not in options and f.name not in ("source_path", "model_path",
+                                                                     "quiet")})
+        return options
+
+
+@dataclass
+class Inputs:
+    """Everything read and validated before the model folder is touched."""
+
+    train: Dataset
+    test: Dataset | None
+    parts: PartSpec
+    parts_source: str
+    imported: GaussianModel | None
+    checkpoint: dict[str, Any] | None
+
+
+def _has_test_split(source_path: str) -> bool:
+    return os.path.isfile(os.path.join(source_path, "transforms_test.json"))
+
+
+def read_inputs(config: TrainConfig) -> Inputs:
+    """Load and check the dataset, part spec, imported PLY and checkpoint (one-line errors)."""
+    train = load_dataset(config.source_path, "train", config.resolution, config.white_background)
+    test = None
+    if _has_test_split(config.source_path):
+        test = load_dataset(config.source_path, "test", config.resolution,
+                            config.white_background)
+    imported = None
+    if config.from_ply is not None:
+        imported = read_ply(config.from_ply)
+    if train.masks is None and not (imported is not None and config.bbox is not None):
+        where = os.path.dirname(train.image_paths[0])
+        if imported is not None:
+            raise ReconstructionError(f"{where}: the images have no alpha channel and there "
+                                      f"are no masks, so --from-ply needs --bbox XMIN YMIN ZMIN "
+                                      f"XMAX YMAX ZMAX (the object's box in model coordinates)")
+        raise ReconstructionError(f"{where}: the images have no alpha channel and the dataset "
+                                  f"has no masks; {NO_MASKS_HINT}")
+    if config.parts is not None:
+        parts_source = config.parts
+        parts = load_part_spec(config.parts)
+    elif os.path.isfile(os.path.join(config.source_path, "parts.json")):
+        parts_source = os.path.join(config.source_path, "parts.json")
+        parts = load_part_spec(parts_source)
+    else:
+        parts_source, parts = "(one part)", single_part_spec()
+    checkpoint = None
+    if config.start_checkpoint is not None:
+        checkpoint = load_checkpoint(config.start_checkpoint)
+    return Inputs(train, test, parts, parts_source, imported, checkpoint)
+
+
+def check_config(config: TrainConfig) -> None:
+    """Range checks of the numeric options; errors name the flag."""
+    checks = [("--iterations", config.iterations >= 0, "must be >= 0"),
+              ("--sdf-res", config.sdf_res >= 8, "must be >= 8"),
+              ("--sdf-iters", config.sdf_iters >= 0, "must be >= 0"),
+              ("--n-surface", config.n_surface >= 1, "must be >= 1"),
+              ("--nv", config.nv >= 0, "must be >= 0"),
+              ("--particle-res", config.particle_res is None or config.particle_res >= 2,
+               "must be >= 2"),
+              ("--n-interior", config.n_interior is None or config.n_interior >= 1,
+               "must be >= 1"),
+              ("--sh-degree", 0 <= config.sh_degree <= 3, "must be 0..3"),
+              ("--max-offset", config.max_offset >= 0, "must be >= 0"),
+              ("--min-component", 0 <= config.min_component <= 1, "must be in [0, 1]"),
+              ("-r", config.resolution == -1 or config.resolution >= 1, "must be >= 1 or -1")]
+    for flag, ok, problem in checks:
+        if not ok:
+            raise ReconstructionError(f"{flag}: {getattr(config, _attribute(flag))} {problem}")
+    if config.bbox is not None:
+        lower, upper = np.asarray(config.bbox[:3]), np.asarray(config.bbox[3:])
+        if len(config.bbox) != 6 or not np.all(upper > lower):
+            raise ReconstructionError(f"--bbox: {config.bbox} is not XMIN YMIN ZMIN XMAX YMAX "
+                                      f"ZMAX with max > min")
+    if config.device == "cuda" and not torch.cuda.is_available():
+        raise ReconstructionError("--device: cuda was requested but no CUDA device is available")
+
+
+def _attribute(flag: str) -> str:
+    return {"-r": "resolution"}.get(flag, flag.lstrip("-").replace("-", "_"))
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+
+def load_checkpoint(path: str) -> dict[str, Any]:
+    if not os.path.isfile(path):
+        raise ReconstructionError(f"{path}: checkpoint not found")
+    try:
+        content = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # torch raises many types for corrupt files
+        raise ReconstructionError(f"{path}: not a readable checkpoint ({type(error).__name__})") \
+            from None
+    if not isinstance(content, dict) or content.get("format") != "fracture_gs/train-checkpoint-v1":
+        raise ReconstructionError(f"{path}: not a train.py checkpoint")
+    return content
+
+
+def save_checkpoint(path: str, state: FitState, particles: ParticleSet, part_id: np.ndarray,
+                    timer: StageTimer, log_rows: list[dict], rng: np.random.Generator,
+                    summary: dict[str, Any]) -> None:
+    content = {"format": "fracture_gs/train-checkpoint-v1", "iteration": state.iteration,
+               "gaussians": {k: v.cpu() for k, v in state.model.raw_tensors().items()},
+               "optimizer": state.optimizer.state_dict(), "anchors": state.anchors.cpu(),
+               "view_order": list(state.view_order),
+               "particles": asdict(particles), "part_id": part_id,
+               "timings": timer.stages, "log": log_rows, "rng": rng.bit_generator.state,
+               "summary": summary}
+    with model_io.atomic_path(path) as temporary:
+        torch.save(content, temporary)
+
+
+# ----------------------------------------------------------------------------- stages
+
+
+def _interior_resolution(config: TrainConfig, mesh: trimesh.Trimesh) -> int:
+    """Particle lattice resolution: ``particle_res``, or the one that gives about
+    ``n_interior`` interior particles at ``nv`` per voxel."""
+    if config.n_interior is None or config.nv == 0:
+        return int(config.particle_res or 48)
+    voxel = (mesh.volume * config.nv / config.n_interior) ** (1.0 / 3.0)
+    return max(2, int(round(float(np.max(mesh.extents)) / voxel)))
+
+
+def surface_colors(dataset: Dataset, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """Initial colour of surface points: the pixel colour in the training view that looks
+    at each point most head-on (the view is in front of the surface, so it sees the point
+    unless another part of the object is in the way)."""
+    centres = dataset.camera_centers().double().numpy()
+    colors = np.empty((len(points), 3))
+    chunk = 1 << 15
+    images = dataset.images.cpu().numpy()
+    for start in range(0, len(points), chunk):
+        p, n = points[start:start + chunk], normals[start:start + chunk]
+        towards = centres[None, :, :] - p[:, None, :]
+        towards /= np.linalg.norm(towards, axis=-1, keepdims=True)
+        best = np.einsum("pvk,pk->pv", towards, n).argmax(axis=1)
+        for view in np.unique(best):
+            chosen = np.nonzero(best == view)[0]
+            camera = dataset.cameras[view]
+            uv, _ = camera.project(torch.from_numpy(p[chosen]).float())
+            column = uv[:, 0].long().clamp(0, dataset.width - 1).numpy()
+            row = uv[:, 1].long().clamp(0, dataset.height - 1).numpy()
+            colors[start + chosen] = images[view, row, column]
+    return colors
+
+
+def check_parts(part_id: np.ndarray, spec: PartSpec, source: str, mesh: trimesh.Trimesh) -> None:
+    counts = np.bincount(part_id, minlength=spec.num_parts)
+    for index, name in enumerate(spec.part_names):
+        if counts[index] == 0:
+            lower, upper = (np.round(b, 3).tolist() for b in mesh.bounds)
+            raise ReconstructionError(
+                f"{source}: part {index} ({name!r}) contains no particle of the object "
+                f"(its box is {lower} .. {upper} in dataset coordinates); check the rules")
+
+
+def _progress(total: int, initial: int, desc: str, quiet: bool) -> tqdm:
+    return tqdm(total=total, initial=initial, desc=desc, unit="it", disable=quiet,
+                dynamic_ncols=True, leave=False, file=sys.stderr)
+
+
+def build_geometry(config: TrainConfig, inputs: Inputs, timer: StageTimer,
+                   device: torch.device, log_rows: list[dict],
+                   summary: dict[str, Any]) -> tuple[VoxelGrid, torch.Tensor, torch.Tensor]:
+    """Visual hull (or opacity field), stereo carving and the NeuS-style refinement; returns
+    the grid, the final SDF and the hull SDF."""
+    if inputs.train.masks is None:
+        assert inputs.imported is not None and config.bbox is not None
+        with timer.stage("opacity_field"):
+            grid, sdf = opacity_field_sdf(inputs.imported, np.asarray(config.bbox[:3]),
+                                          np.asarray(config.bbox[3:]), config.sdf_res,
+                                          config.from_ply or "")
+        return grid, sdf, sdf
+    with timer.stage("visual_hull"):
+        hull = visual_hull(inputs.train.to(device), config.sdf_res, device)
+    if config.sdf_iters == 0:
+        return hull.grid, hull.sdf, hull.sdf
+    with timer.stage("stereo_carving"):
+        carved, count = carve_hull(inputs.train, hull.grid, hull.sdf)
+    summary["carved_nodes"] = count
+    settings = RefineSettings(iterations=config.sdf_iters, rays=config.sdf_rays, seed=config.seed)
+    bar = _progress(config.sdf_iters, 0, "SDF", config.quiet)
+
+    def progress(row: dict) -> None:
+        bar.update(1)
+        if row["iteration"] % 10 == 0:
+            bar.set_postfix(loss=f"{row['loss']:.4f}", ncc=f"{1 - row['photo']:.3f}")
+
+    with timer.stage("sdf_refinement"):
+        try:
+            refined = refine_sdf(inputs.train, hull.grid, carved.to(device), settings, device,
+                                 progress)
+        finally:
+            bar.close()
+    log_rows.extend(refined.log.rows)
+    return hull.grid, refined.sdf, hull.sdf
+
+
+def train(config: TrainConfig, out: TextIO = sys.stdout) -> dict[str, Any]:
+    """Run train.py's pipeline; returns the summary also written to ``timings.json``."""
+    check_config(config)
+    inputs = read_inputs(config)
+    device = torch.device(config.device)
+    folder = model_io.OutputFolder(config.model_path)
+    try:
+        return _train_into(config, inputs, folder, device, out)
+    except (ReconstructionError, DatasetError, PlyFormatError):
+        folder.discard()
+        raise
+
+
+def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
+                device: torch.device, out: TextIO) -> dict[str, Any]:
+    rng = np.random.default_rng(config.seed)
+    torch.manual_seed(config.seed)
+    checkpoint = inputs.checkpoint
+    timer = StageTimer(checkpoint["timings"] if checkpoint else None)
+    log_rows: list[dict] = list(checkpoint["log"]) if checkpoint else []
+    os.makedirs(config.model_path, exist_ok=True)
+    model_io.write_cfg_args(folder.file("cfg_args"), config.cfg_args())
+    views = [(os.path.splitext(os.path.basename(p))[0], c) for dataset in
+             ([inputs.test] if inputs.test is not None else []) + [inputs.train]
+             for p, c in zip(dataset.image_paths, dataset.cameras)]
+    model_io.write_cameras_json(folder.file("cameras.json"), views)
+    summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
+    if checkpoint is None:
+        grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)
+        model_io.write_sdf(folder.file("sdf.npz"), sdf, hull_sdf, grid.origin, grid.voxel)
+        with timer.stage("marching_cubes"):
+            mesh = extract_mesh(sdf, grid, config.min_component,
+                                source=f"{folder.file('sdf.npz')} (--sdf-res {config.sdf_res})")
+            if inputs.train.masks is not None:
+                summary["hull_volume"] = float(extract_mesh(hull_sdf, grid, config.min_component,
+                                                            "visual hull").volume)
+        model_io.write_mesh(folder.file("mesh.ply"), mesh)
+        summary["mesh_volume"] = float(mesh.volume)
+        with timer.stage("particles"):
+            particles = sample_particles(mesh, sdf.to(device), grid, config.n_surface, config.nv,
+                                         _interior_resolution(config, mesh), rng)
+            part_id = assign_part_ids(particles.position, inputs.parts)
+        check_parts(part_id, inputs.parts, inputs.parts_source, mesh)
+    else:
+        particles = ParticleSet(**checkpoint["particles"])
+        part_id = np.asarray(checkpoint["part_id"])
+        rng.bit_generator.state = checkpoint["rng"]
+    surface = particles.is_surface
+    gaussian_index = np.full(len(particles.position), -1, dtype=np.int64)
+    if inputs.imported is not None:
+        iteration = iteration_of(config.from_ply or "")
+        gaussians = inputs.imported
+        gaussian_index[surface] = bind_to_nearest(particles.position[surface],
+                                                  gaussians.means.detach().cpu().numpy())
+        referenced = np.unique(gaussian_index[surface])
+        summary["unbound_gaussians"] = int(gaussians.num_gaussians - len(referenced))
+    else:
+        gaussians, iteration = _fit(config, inputs, folder, particles, part_id, timer, log_rows,
+                                    rng, summary, device, checkpoint)
+        particles.position[surface] = gaussians.means.detach().cpu().double().numpy()
+        gaussian_index[surface] = np.arange(int(surface.sum()))
+    write_ply(folder.file(*model_io.point_cloud_path(config.model_path, iteration)
+                          .split(os.sep)[-3:]), gaussians)
+    _write_particles(folder, particles, part_id, gaussian_index, config)
+    with timer.stage("evaluation"):
+        summary["train"] = evaluate_views(gaussians, inputs.train, device)
+        if inputs.test is not None:
+            summary["test"] = evaluate_views(gaussians, inputs.test, device)
+    summary.update({"iteration": iteration, "n_surface": particles.num_surface,
+                    "n_interior": particles.num_interior,
+                    "total_rest_volume": float(particles.volume.sum()),
+                    "surface_spacing": particles.surface_spacing,
+                    "timings": timer.as_dict()})
+    model_io.write_log_csv(folder.file("train_log.csv"), log_rows)
+    model_io.write_json(folder.file("timings.json"), summary)
+    test_text = (f", test PSNR {summary['test']['psnr']:.2f} dB (SSIM {summary['test']['ssim']:.3f},"
+                 f" {summary['test']['views']} views)" if "test" in summary else "")
+    print(f"[train] {config.model_path}: train PSNR {summary['train']['psnr']:.2f} dB{test_text}; "
+          f"{particles.num_surface} surface + {particles.num_interior} interior particles; "
+          f"{timer.total()['wall_s']:.0f} s", file=out)
+    return summary
+
+
+def _fit(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
+         particles: ParticleSet, part_id: np.ndarray, timer: StageTimer, log_rows: list[dict],
+         rng: np.random.Generator, summary: dict[str, Any], device: torch.device,
+         checkpoint: dict[str, Any] | None) -> tuple[GaussianModel, int]:
+    """The Gaussian stage with periodic checkpoints; returns the model and its iteration."""
+    surface = particles.is_surface
+    settings = FitSettings(iterations=config.iterations, sh_degree=config.sh_degree,
+                           max_offset=config.max_offset, seed=config.seed,
+                           sh_interval=max(1, min(1000, config.iterations // (2 * max(
+                               config.sh_degree, 1)))))
+    spatial_scale = inputs.train.scene_bounds()[1]
+    if checkpoint is None:
+        colors = surface_colors(inputs.train, particles.position[surface],
+                                particles.normal[surface])
+        state = new_fit_state(particles.position[surface], colors, settings, spatial_scale,
+                              device)
+        model_io.write_input_ply(folder.file("input.ply"), particles.position[surface],
+                                 particles.normal[surface], colors)
+    else:
+        state = _restore_fit(checkpoint, settings, spatial_scale, device)
+    bar = _progress(config.iterations, state.iteration, "Gaussians", config.quiet)
+    previous = [c for c in model_io.checkpoints(config.model_path)]
+
+    def on_step(current: FitState, row: dict) -> None:
+        bar.update(1)
+        if current.iteration % 10 == 0 or current.iteration == config.iterations:
+            bar.set_postfix(loss=f"{row['loss']:.4f}", psnr=f"{row['psnr']:.2f}")
+            log_rows.append(row)
+        if current.iteration in config.save_iterations and current.iteration != config.iterations:
+            write_ply(folder.file(*model_io.point_cloud_path(config.model_path, current.iteration)
+                                  .split(os.sep)[-3:]), current.model)
+        if config.checkpoint_every > 0 and current.iteration % config.checkpoint_every == 0 \
+                and current.iteration < config.iterations:
+            path = folder.file(f"chkpnt{current.iteration}.pth")
+            save_checkpoint(path, current, particles, part_id, timer, log_rows, rng, summary)
+            for _, old in previous:
+                if os.path.exists(old) and old != path:
+                    os.remove(old)
+            previous[:] = [(current.iteration, path)]
+
+    try:
+        with timer.stage("gaussians"):
+            fit_gaussians(state, inputs.train, settings, particles.surface_spacing, rng, on_step)
+    finally:
+        bar.close()
+    for _, old in previous:  # the finished model replaces the intermediate checkpoints
+        if os.path.exists(old):
+            os.remove(old)
+    return state.model, state.iteration
+
+
+def _restore_fit(checkpoint: dict[str, Any], settings: FitSettings, spatial_scale: float,
+                 device: torch.device) -> FitState:
+    tensors = checkpoint["gaussians"]
+    model = GaussianModel(*(tensors[name] for name in PARAMETER_NAMES)).to(device)
+    if model.sh_degree != settings.sh_degree:
+        raise ReconstructionError(f"--sh-degree: the checkpoint was trained with SH degree "
+                                  f"{model.sh_degree}, not {settings.sh_degree}")
+    optimizer = make_optimizer(model, settings, spatial_scale)
+    optimizer.load_state_dict(checkpoint["optimizer"])
+    return FitState(model, optimizer, checkpoint["anchors"].to(device),
+                    int(checkpoint["iteration"]), list(checkpoint["view_order"]))
+
+
+def _write_particles(folder: model_io.OutputFolder, particles: ParticleSet, part_id: np.ndarray,
+                     gaussian_index: np.ndarray, config: TrainConfig) -> None:
+    comments = {"surface_spacing": particles.surface_spacing,
+                "interior_voxel": particles.interior_voxel}
+    model_io.write_particles_ply(folder.file(model_io.PARTICLES_FILE), particles.position,
+                                 particles.volume, particles.is_surface, part_id, gaussian_index,
+                                 comments)
+    model_io.write_json(folder.file(model_io.PARTICLES_JSON), {
+        "frame": "model coordinates = the dataset's world coordinates",
+        "surface_spacing": particles.surface_spacing,
+        "interior_voxel": particles.interior_voxel,
+        "interior_particle_size": particles.interior_voxel / max(config.nv, 1) ** (1.0 / 3.0),
+        "nv": config.nv, "n_surface": particles.num_surface,
+        "n_interior": particles.num_interior,
+        "total_volume": float(particles.volume.sum()),
+        "note": "surface_spacing: Poisson-disk radius of the surface particles; "
+                "interior_particle_size: voxel / nv^(1/3), the mean spacing of interior "
+                "samples (a size for the Gaussians of fractured interior particles)"})
+
+
+def default_iteration_count(value: float) -> int:
+    return int(math.ceil(value))

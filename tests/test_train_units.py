@@ -1,0 +1,250 @@
+"""Unit checks of the reconstruction stages (issue 10): grid interpolation, visual hull,
+NeuS opacity, meshing, particle sampling and volumes, image metrics."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+import trimesh
+
+from fracture_gs.data.dataset import Dataset
+from fracture_gs.metrics.image import psnr, ssim
+from fracture_gs.recon.errors import ReconstructionError
+from fracture_gs.recon.grid import (VoxelGrid, cell_corners, interpolate, interpolate_gradient,
+                                    resample, sample_dense)
+from fracture_gs.recon.hull import mask_signed_distance, visual_hull
+from fracture_gs.recon.meshing import extract_mesh
+from fracture_gs.recon.particles import (distribute_volume, maximal_poisson_disk,
+                                         sample_particles, sample_surface_even)
+from fracture_gs.recon.quality import chamfer_distance, spacing_variation
+from fracture_gs.recon.sdf_refine import composite_weights, neus_alpha
+from fracture_gs.render import Camera
+
+
+def _grid() -> VoxelGrid:
+    return VoxelGrid((0.1, -0.2, 0.3), 0.05, (7, 9, 11))
+
+
+def _points(grid: VoxelGrid, count: int, seed: int = 0) -> torch.Tensor:
+    generator = torch.Generator().manual_seed(seed)
+    extent = torch.tensor(grid.upper - grid.lower)
+    return torch.rand(count, 3, generator=generator, dtype=torch.float64) * extent \
+        + torch.tensor(grid.lower)
+
+
+def test_trilinear_matches_grid_sample_and_reproduces_linear_fields() -> None:
+    grid = _grid()
+    values = torch.randn(*grid.shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1))
+    points = _points(grid, 500)
+    corners = cell_corners(grid, points)
+    assert torch.allclose(interpolate(values.reshape(-1), corners),
+                          sample_dense(values, grid, points), atol=1e-12)
+    linear = grid.node_positions().double() @ torch.tensor([1.5, -2.0, 0.25], dtype=torch.float64) + 0.3
+    assert torch.allclose(interpolate(linear.reshape(-1), corners),
+                          points @ torch.tensor([1.5, -2.0, 0.25], dtype=torch.float64) + 0.3)
+    gradient = interpolate_gradient(linear.reshape(-1), corners)
+    assert torch.allclose(gradient, torch.tensor([[1.5, -2.0, 0.25]], dtype=torch.float64)
+                          .expand_as(gradient))
+
+
+def test_analytic_gradient_equals_autograd_position_gradient() -> None:
+    grid = _grid()
+    values = torch.randn(grid.num_nodes, dtype=torch.float64, generator=torch.Generator().manual_seed(2))
+    points = _points(grid, 200, seed=3).requires_grad_(True)
+    value = interpolate(values, cell_corners(grid, points))
+    (autograd,) = torch.autograd.grad(value.sum(), points)
+    assert torch.allclose(interpolate_gradient(values, cell_corners(grid, points.detach())),
+                          autograd, atol=1e-10)
+
+
+def test_resample_to_refined_grid_keeps_node_values() -> None:
+    grid = _grid()
+    values = torch.randn(*grid.shape, dtype=torch.float64)
+    fine = resample(values, grid, grid.refined(2))
+    assert torch.allclose(fine[::2, ::2, ::2], values, atol=1e-12)
+
+
+def test_mask_signed_distance_of_a_disk_is_subpixel_accurate() -> None:
+    size, radius = 96, 30.3
+    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    distance = np.hypot(column - 48.2, row - 47.9) - radius
+    alpha = np.clip(0.5 - distance, 0.0, 1.0).astype(np.float32)  # anti-aliased edge
+    signed = mask_signed_distance(alpha)
+    near_edge = np.abs(distance) < 6
+    assert np.abs(signed - distance)[near_edge].max() < 0.5
+    assert np.abs(signed - distance)[near_edge].mean() < 0.2
+
+
+def _sphere_dataset(radius: float, views: int, size: int = 64) -> Dataset:
+    cameras, masks = [], []
+    golden = math.pi * (3 - math.sqrt(5))
+    for index in range(views):
+        z = 0.9 - 1.6 * (index + 0.5) / views
+        ring = math.sqrt(1 - z * z)
+        eye = 3.0 * np.array([ring * math.cos(golden * index), ring * math.sin(golden * index), z])
+        camera = Camera.look_at(eye, (0, 0, 0), (0, 0, 1), fov_x_rad=0.8, width=size, height=size)
+        column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+        # silhouette of a sphere: the cone of rays tangent to it
+        direction = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
+                              np.ones_like(column)], -1)
+        direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+        distance = np.linalg.norm(eye)
+        sine = np.sqrt(np.clip(1 - direction[..., 2] ** 2, 0, 1))  # angle off the axis
+        angle = np.arcsin(np.clip(sine, 0, 1))
+        edge = np.arcsin(radius / distance)
+        pixels_per_radian = camera.fx
+        masks.append(np.clip(0.5 + (edge - angle) * pixels_per_radian, 0, 1))
+        cameras.append(camera)
+    images = torch.zeros(views, size, size, 3)
+    return Dataset(cameras, images, torch.tensor(np.array(masks), dtype=torch.float32),
+                   [f"view{i}.png" for i in range(views)], "blender")
+
+
+def test_visual_hull_of_a_sphere_approaches_the_sphere() -> None:
+    dataset = _sphere_dataset(0.5, views=24)
+    hull = visual_hull(dataset, 32, torch.device("cpu"))
+    mesh = extract_mesh(hull.sdf, hull.grid)
+    radii = np.linalg.norm(mesh.vertices, axis=1)
+    # a hull circumscribes the sphere; with 24 views it is within a few % of it
+    assert radii.min() > 0.5 - 0.02
+    assert np.median(radii) < 0.5 * 1.06
+    assert mesh.is_watertight and mesh.volume > 0
+
+
+def test_empty_masks_are_an_input_error() -> None:
+    dataset = _sphere_dataset(0.5, views=4)
+    dataset.masks[2] = 0.0
+    with pytest.raises(ReconstructionError, match="view2.png: the object mask is empty"):
+        visual_hull(dataset, 16, torch.device("cpu"))
+
+
+def test_neus_opacity_is_one_across_a_sharp_surface_and_zero_in_free_space() -> None:
+    depth = torch.linspace(0, 1, 201)[None]
+    sdf = 0.5 - depth                           # surface at t = 0.5, inside beyond
+    weights = composite_weights(neus_alpha(sdf, torch.tensor(400.0)))
+    assert abs(float(weights.sum()) - 1.0) < 1e-3
+    peak = float(depth[0, :-1][weights[0].argmax()])
+    assert abs(peak - 0.5) <= 0.01
+    free = composite_weights(neus_alpha(0.3 + 0 * depth, torch.tensor(400.0)))
+    assert float(free.sum()) < 1e-6
+
+
+def test_marching_cubes_of_a_sphere_and_the_empty_error() -> None:
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 40)
+    sdf = grid.node_positions().norm(dim=-1) - 0.7
+    mesh = extract_mesh(sdf, grid)
+    assert mesh.volume == pytest.approx(4 / 3 * math.pi * 0.7 ** 3, rel=0.01)
+    assert np.allclose(np.linalg.norm(mesh.vertices, axis=1), 0.7, atol=2e-3)
+    with pytest.raises(ReconstructionError, match="level 0 found no surface.*--sdf-res"):
+        extract_mesh(sdf + 2.0, grid, source="sdf.npz")
+
+
+def test_small_components_are_dropped() -> None:
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 40)
+    positions = grid.node_positions()
+    big = positions.norm(dim=-1) - 0.6
+    small = (positions - torch.tensor([0.85, 0.85, 0.85])).norm(dim=-1) - 0.08
+    mesh = extract_mesh(torch.minimum(big, small), grid, min_component=0.05)
+    assert len(mesh.split(only_watertight=False)) == 1
+    assert np.linalg.norm(mesh.vertices, axis=1).max() < 0.62
+
+
+def test_poisson_disk_set_is_maximal_and_respects_the_radius() -> None:
+    rng = np.random.default_rng(0)
+    points = rng.random((4000, 2))
+    points = np.concatenate([points, np.zeros((4000, 1))], axis=1)
+    kept = maximal_poisson_disk(points, 0.05, rng.random(4000))
+    chosen = points[kept]
+    from scipy.spatial import cKDTree
+    distances, _ = cKDTree(chosen).query(chosen, k=2)
+    assert distances[:, 1].min() >= 0.05
+    # maximal: every candidate is within the radius of a kept point
+    nearest, _ = cKDTree(chosen).query(points)
+    assert nearest.max() < 0.05
+
+
+def test_surface_particles_are_even_and_exactly_counted() -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    rng = np.random.default_rng(1)
+    points, normals, spacing = sample_surface_even(sphere, 3000, rng)
+    assert points.shape == (3000, 3)
+    assert np.allclose(np.linalg.norm(points, axis=1), 1.0, atol=2e-3)
+    assert np.all(np.einsum("ij,ij->i", normals, points) > 0.99)
+    assert spacing_variation(points) <= 0.2          # random sampling gives about 0.5
+    random_points, _ = trimesh.sample.sample_surface(sphere, 3000, seed=1)
+    assert spacing_variation(np.asarray(random_points)) > 0.4
+
+
+def test_particles_rest_volume_sums_to_mesh_volume_and_nv0_gives_surface_only() -> None:
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 40)
+    sdf = grid.node_positions().norm(dim=-1) - 0.7
+    mesh = extract_mesh(sdf, grid)
+    rng = np.random.default_rng(2)
+    particles = sample_particles(mesh, sdf, grid, n_surface=1500, nv=4, particle_resolution=12,
+                                 rng=rng)
+    assert particles.num_surface == 1500
+    interior = particles.position[~particles.is_surface]
+    assert len(interior) > 0 and np.linalg.norm(interior, axis=1).max() < 0.7 + 1e-3
+    assert particles.volume.sum() == pytest.approx(mesh.volume, rel=1e-9)
+    assert np.all(particles.volume > 0)
+    # interior samples are uniform: per-voxel volume shares are about voxel / nv
+    deep = np.linalg.norm(particles.position, axis=1) < 0.4
+    assert np.median(particles.volume[deep]) == pytest.approx(particles.interior_voxel ** 3 / 4,
+                                                              rel=0.1)
+    surface_only = sample_particles(mesh, sdf, grid, n_surface=800, nv=0, particle_resolution=12,
+                                    rng=np.random.default_rng(3))
+    assert surface_only.num_interior == 0 and surface_only.num_surface == 800
+    assert surface_only.volume.sum() == pytest.approx(mesh.volume, rel=1e-9)
+
+
+def test_distribute_volume_gives_empty_voxels_to_the_nearest_particle() -> None:
+    lattice = VoxelGrid((0.0, 0.0, 0.0), 1.0, (3, 1, 1))
+    position = np.array([[0.1, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    volume = distribute_volume(position, lattice, np.array([1.0, 2.0, 4.0]))
+    assert np.allclose(volume, [0.5, 6.5])  # voxel 2 (no particle) goes to the nearest
+
+
+def test_chamfer_distance_of_a_scaled_sphere() -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=1.0)
+    bigger = trimesh.creation.icosphere(subdivisions=5, radius=1.02)
+    result = chamfer_distance(bigger, sphere, samples=20000)
+    assert result["chamfer"] == pytest.approx(0.02, abs=0.002)
+    assert result["diagonal"] == pytest.approx(2 * math.sqrt(3), rel=1e-3)
+
+
+def _reference_ssim(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """SSIM with a dense 11x11 window, zero 'same' padding (3DGS's formulation)."""
+    offsets = torch.arange(11, dtype=torch.float64) - 5
+    taps = torch.exp(-offsets ** 2 / (2 * 1.5 ** 2))
+    window = (taps[:, None] * taps[None, :]) / taps.sum() ** 2
+    window = window.expand(3, 1, 11, 11).to(x.dtype)
+    a, b = x.permute(2, 0, 1)[None], y.permute(2, 0, 1)[None]
+
+    def blur(t: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(t, window, padding=5, groups=3)
+
+    mu_a, mu_b = blur(a), blur(b)
+    var_a = blur(a * a) - mu_a ** 2
+    var_b = blur(b * b) - mu_b ** 2
+    cov = blur(a * b) - mu_a * mu_b
+    value = ((2 * mu_a * mu_b + 1e-4) * (2 * cov + 9e-4)) / (
+        (mu_a ** 2 + mu_b ** 2 + 1e-4) * (var_a + var_b + 9e-4))
+    return value.mean()
+
+
+def test_ssim_and_psnr() -> None:
+    generator = torch.Generator().manual_seed(0)
+    x = torch.rand(40, 50, 3, generator=generator, dtype=torch.float64)
+    y = (x + 0.05 * torch.randn(40, 50, 3, generator=generator, dtype=torch.float64)).clamp(0, 1)
+    assert float(ssim(x, y)) == pytest.approx(float(_reference_ssim(x, y)), abs=1e-10)
+    assert float(ssim(x, x)) == pytest.approx(1.0, abs=1e-12)
+    batch = ssim(torch.stack([x, y]), torch.stack([y, y]))
+    assert batch.shape == (2,) and float(batch[1]) == pytest.approx(1.0)
+    mse = float(((x - y) ** 2).mean())
+    assert float(psnr(x, y)) == pytest.approx(-10 * math.log10(mse))
+    z = x.clone().requires_grad_(True)
+    (1 - ssim(z, y)).backward()
+    assert z.grad is not None and torch.isfinite(z.grad).all()
