@@ -1,0 +1,302 @@
+"""view.py without a browser: splat conversion, the frame cache, the sources (same code path
+as render.py), bad input (the same one-line errors as render.py, port taken), and the lifetime:
+a real websocket client that leaves ends the viewer after the grace period, stop() leaves no
+thread behind, Ctrl-C (SIGINT) ends the process cleanly."""
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from concurrent.futures import CancelledError
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from fracture_gs.cli import render as render_cli
+from fracture_gs.cli import view as view_cli
+from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
+from fracture_gs.render.sh import SH_C0
+from fracture_gs.sim.folder import Simulation
+from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_port_free
+from fracture_gs.viewer.cache import FrameCache
+from fracture_gs.viewer.sources import ModelSource, SimulationSource
+from fracture_gs.viewer.splats import HIGHLIGHT_RGB, object_splats, unit_scale_for
+from render_scenes import block_scene, identity_frames, lattice_block, write_model, write_sim
+
+REPO = Path(__file__).resolve().parents[1]
+CPU = torch.device("cpu")
+
+
+@pytest.fixture(scope="module")
+def block_sim(tmp_path_factory) -> Path:
+    """A trained-model block (SH degree 1) whose frame 1 is sheared and half fractured."""
+    root = tmp_path_factory.mktemp("viewer")
+    points, surface = lattice_block((0.08, 0.06, 0.05))
+    write_model(root / "model", points, surface)
+    transform = {"scale": 1.0, "translate": [0.5, 0.5, 0.5]}
+    rest = points + 0.5
+    frames = identity_frames(rest, 2)
+    shear = np.eye(3, dtype=np.float32)
+    shear[0, 2] = 0.3
+    frames[1]["F_E"] = np.tile(shear, (rest.shape[0], 1, 1))
+    frames[1]["x"] = (rest + [0.05, 0.0, 0.0]).astype(np.float32)
+    frames[1]["fractured"] = rest[:, 0] > 0.5
+    gaussian_index = np.full(rest.shape[0], -1, np.int64)
+    gaussian_index[surface] = np.arange(int(surface.sum()))
+    particles = {"rest_x": rest.astype(np.float32), "obj_id": np.zeros(rest.shape[0], np.int32),
+                 "is_surface": surface, "gaussian_index": gaussian_index,
+                 "rest_volume": np.full(rest.shape[0], 0.02 ** 3, np.float32)}
+    return write_sim(root / "sim", block_scene(root / "model", transform), particles, frames)
+
+
+def _gaussians(count: int, objects: np.ndarray) -> FrameGaussians:
+    generator = torch.Generator().manual_seed(0)
+    factors = torch.randn(count, 3, 3, generator=generator) * 0.01
+    return FrameGaussians(
+        means=torch.rand(count, 3, generator=generator),
+        covariances=factors @ factors.transpose(1, 2) + 1e-6 * torch.eye(3),
+        opacities=torch.rand(count, generator=generator),
+        sh=torch.randn(count, 4, 3, generator=generator),
+        view_rotations=torch.eye(3).expand(count, 3, 3),
+        exclusive=torch.zeros(count, dtype=torch.bool),
+        object_id=torch.as_tensor(objects, dtype=torch.int32),
+        is_fpgo=torch.arange(count) == count - 1,
+        particle=torch.arange(count, dtype=torch.int64) % 5)
+
+
+def test_splats_are_split_by_object_in_viewer_units_with_dc_colour():
+    objects = np.array([1, 0, 1, 1, 0, 1])
+    gaussians = _gaussians(6, objects)
+    scale = unit_scale_for(np.zeros(3), np.array([0.0, 0.3, 0.4]))
+    assert scale == pytest.approx(100.0 / 0.5)
+    fractured_particles = torch.tensor([False, False, False, True, False])
+    splats = object_splats(gaussians, 3, scale, fractured_particles)
+    assert [len(s) for s in splats] == [2, 4, 0]
+    rows = np.nonzero(objects == 1)[0]
+    one = splats[1]
+    np.testing.assert_allclose(one.centers, gaussians.means[rows].numpy() * scale, rtol=1e-6)
+    np.testing.assert_allclose(one.covariances, gaussians.covariances[rows].numpy() * scale ** 2,
+                               rtol=1e-5)
+    expected_rgb = np.clip(SH_C0 * gaussians.sh[rows, 0].numpy() + 0.5, 0.0, 1.0)
+    np.testing.assert_allclose(one.rgbs, expected_rgb, rtol=1e-6)
+    assert one.opacities.shape == (4, 1)
+    # Gaussian 3 follows fractured particle 3; Gaussian 5 is FPGO's own (is_fpgo)
+    np.testing.assert_array_equal(one.fractured, [False, False, True, True])
+    highlighted = one.colours(highlight_fractured=True)
+    np.testing.assert_allclose(highlighted[2:], np.tile(HIGHLIGHT_RGB, (2, 1)))
+    np.testing.assert_allclose(highlighted[:2], one.rgbs[:2])
+    np.testing.assert_allclose(one.colours(highlight_fractured=False), one.rgbs)
+
+
+def test_float16_covariances_keep_small_gaussians():
+    """viser sends covariances as float16: millimetre Gaussians survive only in viewer units."""
+    sigma = 0.0005     # half a millimetre in a metre-sized scene
+    covariance = np.diag([sigma ** 2, (2 * sigma) ** 2, sigma ** 2]).astype(np.float32)
+    covariance[0, 1] = covariance[1, 0] = 0.5 * sigma * 2 * sigma
+    scale = unit_scale_for(np.zeros(3), np.ones(3))
+    sent = (covariance * scale ** 2).astype(np.float16).astype(np.float32) / scale ** 2
+    np.testing.assert_allclose(sent, covariance, rtol=2e-3, atol=1e-9)
+    raw = covariance.astype(np.float16).astype(np.float32)
+    assert np.abs(raw - covariance).max() / sigma ** 2 > 5e-2   # why the scaling exists
+
+
+def test_frame_cache_prepares_in_background_and_evicts_least_recent():
+    calls: list[tuple[int, str]] = []
+    gate = threading.Event()
+
+    def prepare(frame: int) -> int:
+        gate.wait(5)
+        calls.append((frame, threading.current_thread().name))
+        if frame == 99:
+            raise ValueError("broken frame")
+        return frame * 10
+
+    cache = FrameCache(prepare, capacity=2)
+    try:
+        first = cache.request((1,))
+        assert cache.request((1,)) is first               # asked twice, prepared once
+        gate.set()
+        assert first.result(5) == 10
+        assert cache.cached((1,))
+        assert cache.request((2,)).result(5) == 20
+        cache.request((1,))                               # 1 becomes the most recent
+        assert cache.request((3,)).result(5) == 30        # evicts 2
+        assert cache.cached((1,)) and cache.cached((3,)) and not cache.cached((2,))
+        with pytest.raises(ValueError):
+            cache.request((99,)).result(5)
+        time.sleep(0.05)
+        assert not cache.cached((99,))
+        assert all(name.startswith("viewer-frames") for _, name in calls)
+        assert [frame for frame, _ in calls].count(1) == 1
+    finally:
+        cache.close()
+    with pytest.raises(RuntimeError):
+        cache.request((4,))
+
+
+def test_frame_cache_close_cancels_queued_frames():
+    release = threading.Event()
+    cache = FrameCache(lambda frame: release.wait(5) and frame, capacity=8)
+    running = cache.request((1,))
+    queued = cache.request((2,))
+    closer = threading.Thread(target=cache.close)
+    closer.start()
+    release.set()
+    closer.join(5)
+    assert not closer.is_alive()
+    assert running.result(1) == 1
+    with pytest.raises(CancelledError):
+        queued.result(1)
+
+
+def test_simulation_source_is_the_renderers_frame(block_sim: Path):
+    source = SimulationSource(block_sim, CPU)
+    assert source.frames == [0, 1] and source.object_names == ["block"]
+    sim = Simulation.open(block_sim)
+    frame = sim.load_frame(1)
+    expected = SceneGaussians.from_simulation(sim, CPU).frame(frame, fpgo=True)
+    prepared = source.prepare(1, True)
+    assert prepared.gaussians == len(expected) and prepared.fpgo_gaussians > 0
+    assert prepared.fractured_particles == int(frame.fractured.sum())
+    splats = prepared.objects[0]
+    np.testing.assert_allclose(splats.centers / source.unit_scale, expected.means.numpy(),
+                               atol=1e-6)
+    np.testing.assert_allclose(splats.covariances / source.unit_scale ** 2,
+                               expected.covariances.numpy(), atol=1e-8)
+    without = source.prepare(1, False)
+    assert without.fpgo_gaussians == 0 and without.gaussians < prepared.gaussians
+    assert source.diagnostics(1) == {}     # this folder has no diagnostics.csv
+
+
+def test_model_source_shows_the_trained_gaussians(tmp_path: Path):
+    points, surface = lattice_block((0.05, 0.05, 0.05))
+    model = write_model(tmp_path / "model", points, surface)
+    source = ModelSource(tmp_path / "model", CPU)
+    prepared = source.prepare(0, True)
+    assert source.frames == [0] and not source.has_fracture
+    assert prepared.gaussians == model.num_gaussians
+    np.testing.assert_allclose(prepared.objects[0].centers / source.unit_scale,
+                               model.means.detach().numpy(), atol=1e-6)
+
+
+def _error_line(main, argv: list[str], capsys) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("error: ") and "Traceback" not in err
+    return err
+
+
+def test_bad_folders_give_the_same_error_as_render(block_sim: Path, tmp_path: Path, capsys):
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "scene.yaml").write_text((block_sim / "scene.yaml").read_text())
+    for folder in (tmp_path / "missing", tmp_path, broken):
+        view_error = _error_line(view_cli.main, [str(folder), "--port", "0"], capsys)
+        render_error = _error_line(render_cli.main, ["--sim", str(folder)], capsys)
+        assert view_error == render_error
+    model_error = _error_line(view_cli.main, ["-m", str(tmp_path / "nomodel"), "--port", "0"],
+                              capsys)
+    assert "nomodel" in model_error
+    assert "exactly one" in _error_line(view_cli.main, [], capsys)
+    assert "--frame 7" in _error_line(view_cli.main, [str(block_sim), "--frame", "7",
+                                                      "--port", "0"], capsys)
+
+
+def test_a_taken_port_is_one_clear_line(block_sim: Path, capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        with pytest.raises(PortInUseError):
+            check_port_free("127.0.0.1", port)
+        error = _error_line(view_cli.main, [str(block_sim), "--port", str(port)], capsys)
+    assert f"--port {port}" in error and "already in use" in error
+
+
+async def _visit(port: int, seconds: float) -> None:
+    """Be a viser client for ``seconds``: viser counts a client as connected once it has
+    reported its camera, as the web client does right after connecting."""
+    import msgspec
+    import viser
+    import websockets
+
+    camera = {"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+              "position": [0.0, 0.0, 3.0], "fov": 1.0, "near": 0.01, "far": 100.0,
+              "image_height": 480, "image_width": 640, "look_at": [0.0, 0.0, 0.0],
+              "up_direction": [0.0, 0.0, 1.0]}
+    async with websockets.connect(f"ws://127.0.0.1:{port}", max_size=None,
+                                  subprotocols=[f"viser-v{viser.__version__}"]) as connection:
+        await connection.send(msgspec.msgpack.encode(camera))
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:   # read what the server sends, as a browser would
+            try:
+                await asyncio.wait_for(connection.recv(), timeout=0.1)
+            except asyncio.TimeoutError:
+                pass
+
+
+def _live_threads() -> set[threading.Thread]:
+    return {t for t in threading.enumerate() if t.is_alive()}
+
+
+def test_viewer_ends_after_the_last_client_left_and_leaves_no_thread(block_sim: Path):
+    before = _live_threads()
+    viewer = Viewer(SimulationSource(block_sim, CPU),
+                    ViewerOptions(port=0, grace_seconds=0.5, play_fps=30))
+    viewer.start()
+    try:
+        port = int(viewer.url.rsplit(":", 1)[1])
+        assert viewer.wait_until_shown(0, timeout=30)
+        viewer.set_playing(True)                      # the loop advances frames by itself
+        assert viewer.wait_until_shown(1, timeout=30)
+        viewer.set_playing(False)
+        assert not viewer.stop_requested.is_set()     # no browser yet: waits indefinitely
+        asyncio.run(_visit(port, 0.5))
+        assert viewer.stop_requested.wait(10), "the viewer kept running without a client"
+        assert viewer.client_count == 0
+    finally:
+        viewer.stop()
+    deadline = time.monotonic() + 5
+    while _live_threads() - before and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert _live_threads() - before == set()
+
+
+def test_keep_alive_ignores_the_browser_leaving(block_sim: Path):
+    viewer = Viewer(SimulationSource(block_sim, CPU),
+                    ViewerOptions(port=0, grace_seconds=0.2, keep_alive=True))
+    viewer.start()
+    try:
+        asyncio.run(_visit(int(viewer.url.rsplit(":", 1)[1]), 0.3))
+        assert not viewer.stop_requested.wait(1.0)
+    finally:
+        viewer.stop()
+
+
+def test_ctrl_c_stops_the_viewer_process(block_sim: Path):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.Popen([sys.executable, str(REPO / "view.py"), str(block_sim), "--port",
+                                "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=env, cwd=REPO)
+    try:
+        for line in process.stdout:
+            if line.startswith("viewer: http://"):
+                break
+        else:
+            pytest.fail(f"the viewer did not start: {process.stderr.read()}")
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.communicate()
+    assert process.returncode == 0, err
+    assert "viewer stopped (interrupted)" in out
+    assert "Traceback" not in err
