@@ -109,6 +109,7 @@ class Viewer:
         self.server: Any = None
         self.gui: dict[str, Any] = {}
         self.last_error: str | None = None
+        self.send_started = 0.0          # perf_counter when the last frame began to be sent
         self.url = ""
 
     # ------------------------------------------------------------------ start / stop
@@ -319,11 +320,11 @@ class Viewer:
             future = self.cache.request(frame_key)
         except RuntimeError:   # closed while stopping
             return
-        if self._playing:
-            frames = self.source.frames
-            position = frames.index(key[0])
-            self.cache.prefetch((frames[(position + k) % len(frames)], key[1])
-                                for k in range(1, PREFETCH_AHEAD + 1))
+        frames = self.source.frames
+        position = frames.index(key[0])
+        ahead = PREFETCH_AHEAD if self._playing else 1   # scrubbing: the next frame is likely
+        self.cache.prefetch((frames[(position + k) % len(frames)], key[1])
+                            for k in range(1, min(ahead, len(frames) - 1) + 1))
         while not self._stop.is_set():
             try:
                 prepared = future.result(timeout=0.1)
@@ -353,23 +354,22 @@ class Viewer:
 
     def _send(self, prepared: SplatFrame, highlight: bool) -> None:
         server = self.server
+        self.send_started = time.perf_counter()
         with server.atomic():
             for index, splats in enumerate(prepared.objects):
                 if len(splats) == 0:
                     if index < len(self._nodes):
                         self._nodes[index].visible = False
                     continue
-                colours = splats.colours(highlight)
                 if index >= len(self._nodes) or self._nodes[index] is None:
+                    rgba = splats.rgba
                     node = server.scene.add_gaussian_splats(
                         f"/objects/{index}", centers=splats.centers,
-                        covariances=splats.covariances, rgbs=colours, opacities=splats.opacities,
+                        covariances=splats.covariances, rgbs=rgba[:, :3], opacities=rgba[:, 3:],
                         scale=1.0 / prepared.unit_scale)
                     self._nodes.extend([None] * (index + 1 - len(self._nodes)))
                     self._nodes[index] = node
-                else:
-                    self._nodes[index].set_gaussians(splats.centers, splats.covariances, colours,
-                                                     splats.opacities)
+                self._nodes[index].buffer = splats.packed(highlight)
             self._apply_visibility(prepared)
             self._update_numbers(prepared)
         server.flush()

@@ -1,5 +1,6 @@
-"""A headless Chromium (the system's, via selenium) that opens the viewer and takes
-screenshots — for the browser test, the latency benchmark and ``docs/viewer.png``.
+"""Clients of the viewer for tests, the latency benchmark and ``docs/viewer.png``: a headless
+Chromium (the system's, via selenium) that opens the viewer and takes screenshots, and
+:class:`WebsocketProbe`, a minimal viser client in Python that records what arrives.
 
 WebGL runs on the CPU through SwiftShader (``--use-angle=swiftshader``), so no GPU is needed.
 Nothing is downloaded: the browser and its driver are Debian's ``chromium`` and
@@ -7,8 +8,10 @@ Nothing is downloaded: the browser and its driver are Debian's ``chromium`` and
 """
 from __future__ import annotations
 
+import asyncio
 import io
 import shutil
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -122,4 +125,80 @@ def colour_coverage(image: np.ndarray, colours: np.ndarray, tolerance: float = 4
     return float((distance <= tolerance).mean())
 
 
-__all__ = ["HeadlessBrowser", "SWIFTSHADER_FLAGS", "colour_coverage", "find_chromium", "wait_for"]
+class WebsocketProbe:
+    """A minimal viser client on its own thread: connects to ``ws://host:port``, reports a camera
+    (viser counts a client as connected from its first camera message, as the web client sends
+    right away) and records the arrival time (``time.perf_counter``) and size of every message
+    until :meth:`close`."""
+
+    CAMERA = {"type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0],
+              "position": [0.0, 0.0, 3.0], "fov": 1.0, "near": 0.01, "far": 100.0,
+              "image_height": 480, "image_width": 640, "look_at": [0.0, 0.0, 0.0],
+              "up_direction": [0.0, 0.0, 1.0]}
+
+    def __init__(self, port: int, host: str = "127.0.0.1", timeout: float = 30.0) -> None:
+        self.arrivals: list[tuple[float, int]] = []
+        self._condition = threading.Condition()
+        self._connected = threading.Event()
+        self._closing: asyncio.Event | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=lambda: asyncio.run(self._run(host, port)),
+                                        name="websocket-probe", daemon=True)
+        self._thread.start()
+        if not self._connected.wait(timeout):
+            self.close()
+            raise RuntimeError(f"could not connect to ws://{host}:{port}: {self._error}")
+
+    async def _run(self, host: str, port: int) -> None:
+        import msgspec
+        import viser
+        import websockets
+
+        self._loop = asyncio.get_running_loop()
+        self._closing = asyncio.Event()
+        try:
+            async with websockets.connect(f"ws://{host}:{port}", max_size=None,
+                                          subprotocols=[f"viser-v{viser.__version__}"]) as ws:
+                await ws.send(msgspec.msgpack.encode(self.CAMERA))
+                self._connected.set()
+                closing = asyncio.ensure_future(self._closing.wait())
+                while not self._closing.is_set():
+                    receive = asyncio.ensure_future(ws.recv())
+                    done, _ = await asyncio.wait({receive, closing},
+                                                 return_when=asyncio.FIRST_COMPLETED)
+                    if receive not in done:
+                        receive.cancel()
+                        break
+                    message = receive.result()
+                    with self._condition:
+                        self.arrivals.append((time.perf_counter(), len(message)))
+                        self._condition.notify_all()
+        except Exception as exc:   # reported by the constructor or ignored after close
+            self._error = exc
+
+    def wait_for_message(self, min_bytes: int, after: float, timeout: float) -> float | None:
+        """Arrival time of the first message of at least ``min_bytes`` that arrived after
+        ``after`` (perf_counter), or None after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        with self._condition:
+            while True:
+                for arrived, size in self.arrivals:
+                    if arrived >= after and size >= min_bytes:
+                        return arrived
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._condition.wait(left)
+
+    def close(self) -> None:
+        """Disconnect and end the thread."""
+        if self._loop is not None and self._closing is not None:
+            try:
+                self._loop.call_soon_threadsafe(self._closing.set)
+            except RuntimeError:   # the loop already ended
+                pass
+        self._thread.join(10)
+
+
+__all__ = ["HeadlessBrowser", "WebsocketProbe", "SWIFTSHADER_FLAGS", "colour_coverage", "find_chromium", "wait_for"]

@@ -14,7 +14,7 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import Generic, Hashable, TypeVar
 
 Key = TypeVar("Key", bound=Hashable)
@@ -79,6 +79,13 @@ class FrameCache(Generic[Key, Value]):
             future = self._entries.get(key)
         return future is not None and future.done() and not future.cancelled() and \
             future.exception() is None
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Wait until no frame is being prepared or queued; True if that happened in time."""
+        with self._lock:
+            pending = [future for future in self._entries.values() if not future.done()]
+        _, not_done = wait(pending, timeout=timeout)
+        return not not_done
 
     def __len__(self) -> int:
         with self._lock:

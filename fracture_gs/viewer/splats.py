@@ -1,6 +1,6 @@
 """A frame's Gaussians (:class:`~fracture_gs.render.frame_gaussians.FrameGaussians`) in the form
-viser's ``add_gaussian_splats`` draws: per object, centres (N,3), covariances (N,3,3), RGB (N,3)
-and opacities (N,1), float32 numpy.
+viser's Gaussian splats take them: per object, one packed buffer (centre, covariance, RGBA per
+Gaussian; :class:`ObjectSplats`), ready to assign to a ``GaussianSplatHandle``.
 
 What changes on the way:
 
@@ -33,24 +33,65 @@ HIGHLIGHT_RGB = (1.0, 0.05, 0.75)          # fractured particles' Gaussians, on 
 
 @dataclass(frozen=True)
 class ObjectSplats:
-    """One object's splats of a frame, in viewer units (see the module docstring)."""
+    """One object's splats of a frame, packed as viser sends them (in viewer units, see the
+    module docstring): per Gaussian 8 uint32 = centre (3 float32), a word the browser uses,
+    the covariance's upper triangle xx xy xz yy yz zz (6 float16) and RGBA (4 uint8). Packing
+    happens in the background thread, so showing a cached frame costs only the transfer."""
 
-    centers: np.ndarray      # (N,3) float32
-    covariances: np.ndarray  # (N,3,3) float32
-    rgbs: np.ndarray         # (N,3) float32 in [0,1]
-    opacities: np.ndarray    # (N,1) float32 in [0,1]
+    buffer: np.ndarray       # (N,8) uint32
     fractured: np.ndarray    # (N,) bool: the Gaussian follows a fractured particle or is FPGO's
 
     def __len__(self) -> int:
-        return int(self.centers.shape[0])
+        return int(self.buffer.shape[0])
 
-    def colours(self, highlight_fractured: bool) -> np.ndarray:
-        """RGB to draw: the Gaussians' own, or :data:`HIGHLIGHT_RGB` where fractured."""
+    @property
+    def centers(self) -> np.ndarray:
+        """(N,3) float32."""
+        return self.buffer[:, 0:3].view(np.float32)
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(N,3,3) float32 (from the float16 upper triangle)."""
+        xx, xy, xz, yy, yz, zz = np.ascontiguousarray(self.buffer[:, 4:7]).view(np.float16) \
+            .astype(np.float32).T
+        return np.stack([xx, xy, xz, xy, yy, yz, xz, yz, zz], axis=1).reshape(-1, 3, 3)
+
+    @property
+    def rgba(self) -> np.ndarray:
+        """(N,4) uint8."""
+        return np.ascontiguousarray(self.buffer[:, 7]).view(np.uint8).reshape(-1, 4)
+
+    def packed(self, highlight_fractured: bool) -> np.ndarray:
+        """The buffer to send: as prepared, or with fractured Gaussians in :data:`HIGHLIGHT_RGB`
+        (their opacity kept)."""
         if not highlight_fractured or not self.fractured.any():
-            return self.rgbs
-        rgbs = self.rgbs.copy()
-        rgbs[self.fractured] = HIGHLIGHT_RGB
-        return rgbs
+            return self.buffer
+        buffer = self.buffer.copy()
+        rgba = self.rgba
+        rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
+        buffer[:, 7] = rgba.view(np.uint32).reshape(-1)
+        return buffer
+
+
+def to_uint8(values: np.ndarray) -> np.ndarray:
+    """[0,1] floats as rounded uint8."""
+    return (np.clip(values, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def pack_splats(centers: np.ndarray, covariances: np.ndarray, rgbs: np.ndarray,
+                opacities: np.ndarray) -> np.ndarray:
+    """(N,8) uint32 in viser's splat layout (see :class:`ObjectSplats`) from float arrays:
+    centres (N,3), covariances (N,3,3), RGB (N,3) and opacities (N,) in [0,1]."""
+    count = centers.shape[0]
+    buffer = np.zeros((count, 8), np.uint32)
+    buffer[:, 0:3] = np.ascontiguousarray(centers, np.float32).view(np.uint32)
+    upper = covariances.reshape(count, 9)[:, [0, 1, 2, 4, 5, 8]]
+    buffer[:, 4:7] = np.ascontiguousarray(upper, np.float16).view(np.uint32)
+    rgba = np.empty((count, 4), np.uint8)
+    rgba[:, :3] = to_uint8(rgbs)
+    rgba[:, 3] = to_uint8(opacities.reshape(count))
+    buffer[:, 7] = rgba.view(np.uint32).reshape(count)
+    return buffer
 
 
 @dataclass(frozen=True)
@@ -72,42 +113,43 @@ def unit_scale_for(lower: np.ndarray, upper: np.ndarray) -> float:
     return VIEWER_EXTENT / diagonal if diagonal > 0 else 1.0
 
 
-def dc_colours(sh: torch.Tensor) -> torch.Tensor:
+def dc_colours(sh: np.ndarray) -> np.ndarray:
     """RGB (N,3) of the SH DC band (N,K,3): the colour averaged over view directions."""
-    return (SH_C0 * sh[:, 0, :] + 0.5).clamp(0.0, 1.0)
+    return np.clip(SH_C0 * sh[:, 0, :] + 0.5, 0.0, 1.0)
 
 
 def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: float,
                   fractured_particles: torch.Tensor | None = None) -> list[ObjectSplats]:
-    """Split ``gaussians`` by object and convert them (see the module docstring).
+    """Split ``gaussians`` by object, convert and pack them (see the module docstring).
 
     ``fractured_particles`` (bool per particle) marks the Gaussians that follow a fractured
     particle; FPGO's own Gaussians always count as fractured.
     """
-    with torch.no_grad():
-        fractured = gaussians.is_fpgo.clone()
-        if fractured_particles is not None and len(gaussians):
-            following = gaussians.particle
-            valid = following >= 0
-            fractured[valid] |= fractured_particles.to(following.device)[following[valid]]
-        columns = {
-            "centers": (gaussians.means.float() * unit_scale),
-            "covariances": (gaussians.covariances.float() * (unit_scale * unit_scale)),
-            "rgbs": dc_colours(gaussians.sh.float()),
-            "opacities": gaussians.opacities.float().clamp(0.0, 1.0)[:, None],
-            "fractured": fractured,
-        }
-        columns = {name: value.detach().cpu().numpy() for name, value in columns.items()}
-        object_id = gaussians.object_id.detach().cpu().numpy()
-    order = np.argsort(object_id, kind="stable")
-    bounds = np.searchsorted(object_id[order], np.arange(object_count + 1))
-    result = []
-    for index in range(object_count):
-        rows = order[bounds[index]:bounds[index + 1]]
-        result.append(ObjectSplats(**{name: np.ascontiguousarray(value[rows])
-                                      for name, value in columns.items()}))
-    return result
+    def numpy(values: torch.Tensor) -> np.ndarray:   # numpy from here: no torch thread pool
+        return values.detach().cpu().numpy()
+
+    fractured = numpy(gaussians.is_fpgo).copy()
+    if fractured_particles is not None and len(gaussians):
+        following = numpy(gaussians.particle)
+        valid = following >= 0
+        fractured[valid] |= numpy(fractured_particles.bool())[following[valid]]
+    object_id = numpy(gaussians.object_id)
+    order = None
+    if object_id.size and (np.diff(object_id) < 0).any():   # FPGO may append out of order
+        order = np.argsort(object_id, kind="stable")
+        object_id, fractured = object_id[order], fractured[order]
+
+    def column(values: torch.Tensor) -> np.ndarray:
+        array = numpy(values.float())
+        return array[order] if order is not None else array
+
+    buffer = pack_splats(column(gaussians.means) * unit_scale,
+                         column(gaussians.covariances) * (unit_scale * unit_scale),
+                         dc_colours(column(gaussians.sh[:, :1])), column(gaussians.opacities))
+    bounds = np.searchsorted(object_id, np.arange(object_count + 1))
+    return [ObjectSplats(buffer[bounds[i]:bounds[i + 1]], fractured[bounds[i]:bounds[i + 1]])
+            for i in range(object_count)]
 
 
 __all__ = ["HIGHLIGHT_RGB", "ObjectSplats", "SplatFrame", "VIEWER_EXTENT", "dc_colours",
-           "object_splats", "unit_scale_for"]
+           "object_splats", "pack_splats", "to_uint8", "unit_scale_for"]
