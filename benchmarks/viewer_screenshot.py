@@ -3,7 +3,8 @@
 saved as a PNG (GUI panel included).
 
 Usage: PYTHONPATH=. python benchmarks/viewer_screenshot.py --sim output/sims/two_spheres \
-           --frame 10 --out docs/viewer.png [--size 1280 800] [--highlight] [--no-fpgo]
+           --frame 10 --out docs/viewer.png [--size 1280 800] [--zoom 1.5] [--highlight] \
+           [--no-fpgo]
 Prints one JSON line (what it wrote).
 """
 from __future__ import annotations
@@ -39,6 +40,8 @@ def main() -> int:
     parser.add_argument("--size", type=int, nargs=2, default=(1280, 800), metavar=("W", "H"))
     parser.add_argument("--highlight", action="store_true", help="fractured particles in magenta")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false")
+    parser.add_argument("--zoom", type=float, default=1.0,
+                        help="move the camera this many times closer than the initial view")
     parser.add_argument("--settle", type=float, default=5.0,
                         help="seconds to let the browser sort and draw the splats")
     args = parser.parse_args()
@@ -49,7 +52,7 @@ def main() -> int:
     source = SimulationSource(args.sim, torch.device("cpu"))
     frame = args.frame if args.frame is not None else source.frames[-1]
     viewer = Viewer(source, ViewerOptions(port=0, keep_alive=True, fpgo=args.fpgo,
-                                          start_frame=frame))
+                                          start_frame=frame, zoom=args.zoom))
     url = viewer.start()
     try:
         viewer.gui["highlight"].value = args.highlight

@@ -149,12 +149,17 @@ def test_frame_cache_prepares_in_background_and_evicts_least_recent():
         cache.request((1,))                               # 1 becomes the most recent
         assert cache.request((3,)).result(5) == 30        # evicts 2
         assert cache.cached((1,)) and cache.cached((3,)) and not cache.cached((2,))
+        failed = cache.request((99,))
         with pytest.raises(ValueError):
-            cache.request((99,)).result(5)
-        time.sleep(0.05)
+            failed.result(5)
         assert not cache.cached((99,))
+        retried = cache.request((99,))                    # a failure is not cached: retried
+        assert retried is not failed
+        with pytest.raises(ValueError):
+            retried.result(5)
         assert all(name.startswith("viewer-frames") for _, name in calls)
         assert [frame for frame, _ in calls].count(1) == 1
+        assert [frame for frame, _ in calls].count(99) == 2
     finally:
         cache.close()
     with pytest.raises(RuntimeError):

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from fracture_gs.cli.simulate import run_simulation
-from fracture_gs.config.scene import parse_scene
+from fracture_gs.config.scene import parse_scene, read_yaml
 from fracture_gs.render.frame_gaussians import FLAT_PALETTE
 from fracture_gs.viewer.app import Viewer, ViewerOptions
 from fracture_gs.viewer.browser import HeadlessBrowser, colour_coverage, find_chromium, wait_for
@@ -25,22 +25,22 @@ pytestmark = pytest.mark.skipif(find_chromium() is None,
                                 reason="no system Chromium / chromedriver (apt-get install "
                                 "chromium chromium-driver)")
 
+REPO = Path(__file__).resolve().parents[1]
 MIN_COVERAGE = 0.01        # acceptance: the objects cover >= 1 % of the pixels
 MIN_CHANGED = 0.005        # pixels that change when the slider moves two frames
 
 
 def tiny_collision() -> dict:
-    material = {"part": 0, "model": "nacc", "E": 2.0e3, "nu": 0.3, "density": 100.0,
-                "Jp0": 0.98, "beta": 0.5, "xi": 1.0, "M": 2.36}
-    sphere = {"shape": "sphere", "radius": 0.12, "particles_per_cell": 4}
-    return {"name": "tiny_view", "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": 16},
-            "frames": 2, "frame_dt": 0.01, "gravity": [0, 0, 0],
-            "objects": [{"name": "a", "primitive": sphere,
-                         "transform": {"translate": [0.33, 0.5, 0.5]}, "velocity": [4, 0, 0],
-                         "materials": [material]},
-                        {"name": "b", "primitive": sphere,
-                         "transform": {"translate": [0.67, 0.5, 0.5]}, "velocity": [-4, 0, 0],
-                         "materials": [material]}]}
+    """The demo (configs/two_spheres.yaml) made tiny: a 16³ grid, coarse spheres, two frames in
+    which they approach by 8 cm."""
+    scene = read_yaml(REPO / "configs" / "two_spheres.yaml")
+    scene.update(name="tiny_view", frames=2, frame_dt=0.01)
+    scene["domain"]["grid"] = 16
+    for obj, x, vx in zip(scene["objects"], (0.33, 0.67), (4.0, -4.0)):
+        obj["primitive"].update(radius=0.12, particles_per_cell=4)
+        obj["transform"]["translate"][0] = x
+        obj["velocity"] = [vx, 0.0, 0.0]
+    return scene
 
 
 @pytest.fixture(scope="module")
@@ -90,6 +90,8 @@ def test_viewer_in_headless_chromium(tiny_sim: Path):
 
             assert wait_for(lambda: changed() >= MIN_CHANGED, 60, interval=0.5), \
                 f"moving the slider changed {changed():.4f} of the pixels"
+            print(f"objects cover {coverage:.4f} of the canvas; frame 0 -> 2 changed "
+                  f"{changed():.4f} of its pixels")
         # the browser is gone: the viewer asks to stop after the grace period
         assert viewer.stop_requested.wait(30), "the viewer kept running after the browser left"
     finally:

@@ -54,6 +54,7 @@ class ViewerOptions:
     cache_frames: int = 32
     fpgo: bool = True
     start_frame: int | None = None
+    zoom: float = 1.0            # initial camera this many times closer than render.py's orbit
 
 
 def check_port_free(host: str, port: int) -> None:
@@ -178,10 +179,11 @@ class Viewer:
         if abs(up[axis]) > 0.999:
             self.server.scene.set_up_direction(("+" if up[axis] > 0 else "-") + "xyz"[axis])
         centre, radius = bounds_sphere(np.stack([bounds.lower, bounds.upper]))
-        # render.py's orbit:8 camera 1 (45° round from orbit_00): objects that collide along
-        # a horizontal axis are seen side by side, with depth
-        camera = orbit_views(8, centre, max(radius, 1e-3), 1, 1, up=up)[1].camera
+        # render.py's orbit:12 camera 2 (60° round from orbit_00, 20° up): objects that collide
+        # along a horizontal axis are seen almost side by side, with some depth
+        camera = orbit_views(12, centre, max(radius, 1e-3), 1, 1, up=up)[2].camera
         position = camera.center.double().cpu().numpy()
+        position = centre + (position - centre) / max(self.options.zoom, 1e-3)
         initial = self.server.initial_camera
         initial.position = tuple(position)
         initial.look_at = tuple(centre)

@@ -21,6 +21,11 @@ Key = TypeVar("Key", bound=Hashable)
 Value = TypeVar("Value")
 
 
+def _failed(future: Future) -> bool:
+    """Cancelled, or finished with an exception (never cached: asking again retries)."""
+    return future.cancelled() or (future.done() and future.exception() is not None)
+
+
 class FrameCache(Generic[Key, Value]):
     """LRU cache of ``prepare(*key)`` results computed by one worker thread.
 
@@ -43,7 +48,7 @@ class FrameCache(Generic[Key, Value]):
         return self._prepare(*key)
 
     def _forget_failure(self, key: Key, future: Future) -> None:
-        if future.cancelled() or future.exception() is not None:
+        if _failed(future):
             with self._lock:
                 if self._entries.get(key) is future:
                     del self._entries[key]
@@ -54,7 +59,7 @@ class FrameCache(Generic[Key, Value]):
             if self._closed:
                 raise RuntimeError("the frame cache is closed")
             future = self._entries.get(key)
-            if future is not None:
+            if future is not None and not _failed(future):
                 self._entries.move_to_end(key)
                 return future
             future = self._executor.submit(self._run, key)
@@ -77,8 +82,7 @@ class FrameCache(Generic[Key, Value]):
         """True when ``key`` is prepared and waiting in the cache."""
         with self._lock:
             future = self._entries.get(key)
-        return future is not None and future.done() and not future.cancelled() and \
-            future.exception() is None
+        return future is not None and future.done() and not _failed(future)
 
     def wait_idle(self, timeout: float | None = None) -> bool:
         """Wait until no frame is being prepared or queued; True if that happened in time."""
