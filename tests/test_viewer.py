@@ -167,10 +167,17 @@ def test_frame_cache_prepares_in_background_and_evicts_least_recent():
 
 
 def test_frame_cache_close_cancels_queued_frames():
-    release = threading.Event()
-    cache = FrameCache(lambda frame: release.wait(5) and frame, capacity=8)
+    started, release = threading.Event(), threading.Event()
+
+    def prepare(frame: int) -> int:
+        started.set()
+        release.wait(5)
+        return frame
+
+    cache = FrameCache(prepare, capacity=8)
     running = cache.request((1,))
     queued = cache.request((2,))
+    assert started.wait(5)          # frame 1 is being prepared, frame 2 waits in the queue
     closer = threading.Thread(target=cache.close)
     closer.start()
     release.set()

@@ -317,6 +317,8 @@ class Viewer:
 
     def _show_wanted(self) -> None:
         key = self._wanted()
+        if key == self._shown:   # e.g. the slider callback of a frame the loop already showed
+            return
         frame_key = key[:2]
         try:
             future = self.cache.request(frame_key)
