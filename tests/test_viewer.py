@@ -5,6 +5,7 @@ thread behind, Ctrl-C (SIGINT) ends the process cleanly."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -208,6 +209,27 @@ def test_simulation_source_is_the_renderers_frame(block_sim: Path):
     assert source.diagnostics(1) == {}     # this folder has no diagnostics.csv
 
 
+def test_frame_diagnostics_reach_the_gui(block_sim: Path, tmp_path: Path):
+    sim = tmp_path / "sim"
+    shutil.copytree(block_sim, sim)
+    (sim / "diagnostics.csv").write_text(
+        "frame,time,steps,dt_min,px,py,pz,kinetic,elastic,gravitational,total_energy,fractured\n"
+        "0,0.0,0,0.001,0.0,0.0,0.0,0.0,0.0,0.5,0.5,0\n"
+        "1,0.01,4,0.001,3.0,0.0,-4.0,0.25,0.125,0.0625,0.4375,12\n")
+    source = SimulationSource(sim, CPU)
+    assert source.diagnostics(1)["momentum"] == pytest.approx(5.0)
+    viewer = Viewer(source, ViewerOptions(port=0, start_frame=1))
+    viewer.start()
+    try:
+        assert viewer.wait_until_shown(1, timeout=30)
+        shown = {name: handle.value for name, handle in viewer.gui["diagnostics"].items()}
+        assert shown == pytest.approx({"time": 0.01, "momentum": 5.0, "px": 3.0, "py": 0.0,
+                                       "pz": -4.0, "kinetic": 0.25, "elastic": 0.125,
+                                       "gravitational": 0.0625, "total_energy": 0.4375})
+    finally:
+        viewer.stop()
+
+
 def test_model_source_shows_the_trained_gaussians(tmp_path: Path):
     points, surface = lattice_block((0.05, 0.05, 0.05))
     model = write_model(tmp_path / "model", points, surface)
@@ -217,6 +239,15 @@ def test_model_source_shows_the_trained_gaussians(tmp_path: Path):
     assert prepared.gaussians == model.num_gaussians
     np.testing.assert_allclose(prepared.objects[0].centers / source.unit_scale,
                                model.means.detach().numpy(), atol=1e-6)
+    viewer = Viewer(source, ViewerOptions(port=0))
+    viewer.start()
+    try:
+        assert viewer.wait_until_shown(0, timeout=30)
+        assert not viewer.gui["fpgo"].visible and not viewer.gui["highlight"].visible
+        assert viewer.gui["diagnostics"] == {} and viewer.gui["frame"].disabled
+        assert viewer.gui["numbers"]["gaussians"].value == model.num_gaussians
+    finally:
+        viewer.stop()
 
 
 def _error_line(main, argv: list[str], capsys) -> str:
