@@ -209,6 +209,27 @@ def test_simulation_source_is_the_renderers_frame(block_sim: Path):
     assert source.diagnostics(1) == {}     # this folder has no diagnostics.csv
 
 
+def test_a_broken_frame_is_reported_in_the_gui_and_the_viewer_keeps_serving(block_sim: Path,
+                                                                           tmp_path: Path):
+    sim = tmp_path / "sim"
+    shutil.copytree(block_sim, sim)
+    source = SimulationSource(sim, CPU)
+    (sim / "frames" / "frame_00001.npz").write_bytes(b"not an npz")
+    viewer = Viewer(source, ViewerOptions(port=0))
+    viewer.start()
+    try:
+        assert viewer.wait_until_shown(0, timeout=30)
+        viewer.gui["frame"].value = 1
+        assert viewer.wait_until_shown(1, timeout=30)
+        status = viewer.gui["status"].value
+        assert "frame_00001.npz" in status and "not a readable .npz" in status
+        viewer.gui["frame"].value = 0
+        assert viewer.wait_until_shown(0, timeout=30)
+        assert viewer.gui["status"].value == "frame 0 shown"
+    finally:
+        viewer.stop()
+
+
 def test_frame_diagnostics_reach_the_gui(block_sim: Path, tmp_path: Path):
     sim = tmp_path / "sim"
     shutil.copytree(block_sim, sim)

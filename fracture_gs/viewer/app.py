@@ -128,13 +128,17 @@ class Viewer:
             raise PortInUseError(f"--port {options.port}: {options.host}:{options.port} is "
                                  "already in use; pick a free one with --port N")
         self.server = server
-        server.gui.configure_theme(control_width="medium", show_share_button=False)
-        self._set_up_camera()
-        self._build_gui()
-        server.on_client_connect(self._on_connect)
-        server.on_client_disconnect(self._on_disconnect)
-        self._loop = threading.Thread(target=self._run_loop, name="viewer-loop", daemon=True)
-        self._loop.start()
+        try:
+            server.gui.configure_theme(control_width="medium", show_share_button=False)
+            self._set_up_camera()
+            self._build_gui()
+            server.on_client_connect(self._on_connect)
+            server.on_client_disconnect(self._on_disconnect)
+            self._loop = threading.Thread(target=self._run_loop, name="viewer-loop", daemon=True)
+            self._loop.start()
+        except BaseException:
+            self.stop()
+            raise
         host = "127.0.0.1" if options.host in ("0.0.0.0", "") else options.host
         self.url = f"http://{host}:{server.get_port()}"
         return self.url
@@ -219,6 +223,7 @@ class Viewer:
                                                  ("fpgo_gaussians", "FPGO Gaussians", 1),
                                                  ("fractured_particles", "fractured particles", 1),
                                                  ("prepare_ms", "prepare (ms)", 0.1))}
+            status = gui.add_text("status", "starting", disabled=True)
         diagnostics = {}
         if source.diagnostics(frames[0]):
             with gui.add_folder("Diagnostics"):
@@ -230,7 +235,7 @@ class Viewer:
                     diagnostics[name] = gui.add_number(label, 0.0, disabled=True, step=1e-6)
         self.gui = {"frame": slider, "play": play, "pause": pause, "speed": speed, "loop": loop,
                     "fpgo": fpgo, "highlight": highlight, "objects": visible, "numbers": numbers,
-                    "diagnostics": diagnostics}
+                    "status": status, "diagnostics": diagnostics}
         slider.on_update(lambda _: self._mark_dirty())
         fpgo.on_update(lambda _: self._mark_dirty())
         highlight.on_update(lambda _: self._mark_dirty())
@@ -343,12 +348,14 @@ class Viewer:
             except Exception as exc:   # a broken frame file: report it in the GUI, keep serving
                 self.last_error = f"frame {key[0]}: {exc}"
                 print(f"viewer: {self.last_error}", flush=True)
+                self.gui["status"].value = self.last_error
                 self._shown = key
                 self._notify_shown()
                 return
         else:
             return
         self._send(prepared, highlight=key[2])
+        self.gui["status"].value = f"frame {key[0]} shown"
         self._shown, self._shown_frame = key, prepared
         self._notify_shown()
 
