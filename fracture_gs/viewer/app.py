@@ -245,7 +245,11 @@ class Viewer:
         pause.on_click(lambda _: self.set_playing(False))
 
     def set_playing(self, playing: bool) -> None:
-        """Start or pause playback (what the Play / Pause buttons do)."""
+        """Start or pause playback (what the Play / Pause buttons do); playing from the last
+        frame starts over."""
+        frames = self.source.frames
+        if playing and self._shown is not None and self._shown[0] == frames[-1]:
+            self.gui["frame"].value = frames[0]
         with self._condition:
             self._playing = playing
             self._next_tick = time.monotonic()
