@@ -72,11 +72,12 @@ def _checked(args: argparse.Namespace) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = parse_args(argv)
-    from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions
+    from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_port_free
     from fracture_gs.viewer.sources import ModelSource, SimulationSource
 
     try:
         _checked(args)
+        check_port_free(args.host, args.port)   # before loading: a taken port fails at once
         device = resolve_device(args.device)
         if args.model is not None:
             source = ModelSource(args.model, device)
