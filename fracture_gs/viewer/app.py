@@ -157,7 +157,9 @@ class Viewer:
         return reason
 
     def stop(self) -> None:
-        """Stop playing, the loop, the frame worker and the server; wait for their threads."""
+        """Stop playing, the loop, the frame worker and the server, then wait (5 s at most in
+        all) for every thread started since :meth:`start` — viser's callback pool winds down
+        only after its ``stop()`` returns."""
         if self._stop.is_set():
             return
         self._stop.set()
@@ -170,7 +172,7 @@ class Viewer:
             self.server.stop()
         deadline = time.monotonic() + THREAD_JOIN_SECONDS
         current = threading.current_thread()
-        for thread in threading.enumerate():   # viser's pool winds down after stop() returns
+        for thread in threading.enumerate():
             if thread not in self._threads_before and thread is not current:
                 thread.join(max(0.0, deadline - time.monotonic()))
 
