@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from fracture_gs.cli.render import InvalidInput, resolve_device
@@ -99,12 +101,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted while loading", file=sys.stderr)
         return 130
-    policy = "Ctrl-C to stop" + ("" if args.keep_alive else
-                                 f"; exits {args.grace:g} s after the last browser tab closes")
-    print(f"viewer: {url}  ({what}: {len(source.frames)} frame(s), "
-          f"{len(source.object_names)} object(s)); {policy}", flush=True)
-    reason = viewer.run()
-    print(f"viewer stopped ({reason})", flush=True)
+    interrupted = threading.Event()
+
+    def on_sigint(_signum: int, _frame: object) -> None:
+        # Ctrl-C asks the viewer to stop instead of raising wherever the main thread happens to
+        # be; a second Ctrl-C while it stops ends the process the default way.
+        interrupted.set()
+        viewer.stop_requested.set()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    try:
+        policy = "Ctrl-C to stop" + ("" if args.keep_alive else
+                                     f"; exits {args.grace:g} s after the last browser tab closes")
+        print(f"viewer: {url}  ({what}: {len(source.frames)} frame(s), "
+              f"{len(source.object_names)} object(s)); {policy}", flush=True)
+        reason = viewer.run()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    print(f"viewer stopped ({'interrupted' if interrupted.is_set() else reason})", flush=True)
     return 0
 
 
