@@ -25,7 +25,7 @@ from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.sh import SH_C0
 from fracture_gs.sim.folder import Simulation
 from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_port_free
-from fracture_gs.viewer.browser import WebsocketProbe
+from fracture_gs.viewer.browser import WebsocketProbe, wait_for
 from fracture_gs.viewer.cache import FrameCache
 from fracture_gs.viewer.sources import ModelSource, SimulationSource
 from fracture_gs.viewer.splats import (HIGHLIGHT_RGB, ObjectSplats, object_splats, to_uint8,
@@ -247,6 +247,17 @@ def test_frame_diagnostics_reach_the_gui(block_sim: Path, tmp_path: Path):
         assert shown == pytest.approx({"time": 0.01, "momentum": 5.0, "px": 3.0, "py": 0.0,
                                        "pz": -4.0, "kinetic": 0.25, "elastic": 0.125,
                                        "gravitational": 0.0625, "total_energy": 0.4375})
+        node = viewer._nodes[0]
+        prepared = viewer.cache.request((1, True)).result(30)
+        np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].buffer)
+        viewer.gui["highlight"].value = True          # fractured Gaussians re-sent in magenta
+        assert wait_for(lambda: viewer.shown == (1, True, True), 30)
+        np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].packed(True))
+        assert prepared.objects[0].fractured.any() and not prepared.objects[0].fractured.all()
+        viewer.gui["objects"][0].value = False        # per-object visibility
+        assert not node.visible
+        viewer.gui["objects"][0].value = True
+        assert node.visible
     finally:
         viewer.stop()
 
