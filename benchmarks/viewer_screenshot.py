@@ -24,8 +24,14 @@ from fracture_gs.viewer.sources import SimulationSource
 
 
 def drawn_fraction(browser: HeadlessBrowser) -> float:
-    """Share of canvas pixels that are not the white background."""
-    image = browser.screenshot()
+    """Share of canvas pixels that are not the white background (0 while the page is too busy
+    drawing in software to answer)."""
+    from selenium.common.exceptions import TimeoutException
+
+    try:
+        image = browser.screenshot()
+    except TimeoutException:
+        return 0.0
     box = browser.canvas_box()
     if box is not None:
         image = image[box[1]:box[3], box[0]:box[2]]
