@@ -1,0 +1,155 @@
+"""A frame's Gaussians (:class:`~fracture_gs.render.frame_gaussians.FrameGaussians`) in the form
+viser's Gaussian splats take them: per object, one packed buffer (centre, covariance, RGBA per
+Gaussian; :class:`ObjectSplats`), ready to assign to a ``GaussianSplatHandle``.
+
+What changes on the way:
+
+* colour: viser stores one RGB per Gaussian, no spherical harmonics. We use the DC band,
+  ``SH_C0·sh₀ + 0.5`` clamped to [0, 1] — the SH colour averaged over all view directions
+  (the higher bands integrate to zero over the sphere), so it does not depend on the view
+  rotations of the frame;
+* units: viser sends covariances as float16. Gaussians of millimetres in a metre-sized scene
+  (σ² ≈ 1e-6) would fall into float16's subnormal range and lose their shape, so the splats are
+  sent in *viewer units* — world coordinates times :attr:`SplatFrame.unit_scale`, chosen so that
+  the scene's bounding box diagonal is 100 units (σ = 0.05 % of the scene stays a normal
+  float16, a Gaussian as large as the scene stays below float16's maximum) — and the scene
+  node is scaled back by ``1 / unit_scale``;
+* FPGO's ``exclusive`` flag (only the nearest lens Gaussian blends at a pixel) has no
+  counterpart in viser's renderer: lens Gaussians blend like all others there.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from fracture_gs.render.frame_gaussians import FrameGaussians
+from fracture_gs.render.sh import SH_C0
+
+VIEWER_EXTENT = 100.0                      # the scene's bounding box diagonal in viewer units
+HIGHLIGHT_RGB = (1.0, 0.05, 0.75)          # fractured particles' Gaussians, on request
+
+
+@dataclass(frozen=True)
+class ObjectSplats:
+    """One object's splats of a frame, packed as viser sends them (in viewer units, see the
+    module docstring): per Gaussian 8 uint32 = centre (3 float32), a word the browser uses,
+    the covariance's upper triangle xx xy xz yy yz zz (6 float16) and RGBA (4 uint8). Packing
+    happens in the background thread, so showing a cached frame costs only the transfer."""
+
+    buffer: np.ndarray       # (N,8) uint32
+    fractured: np.ndarray    # (N,) bool: the Gaussian follows a fractured particle or is FPGO's
+
+    def __len__(self) -> int:
+        return int(self.buffer.shape[0])
+
+    @property
+    def centers(self) -> np.ndarray:
+        """(N,3) float32."""
+        return self.buffer[:, 0:3].view(np.float32)
+
+    @property
+    def covariances(self) -> np.ndarray:
+        """(N,3,3) float32 (from the float16 upper triangle)."""
+        xx, xy, xz, yy, yz, zz = np.ascontiguousarray(self.buffer[:, 4:7]).view(np.float16) \
+            .astype(np.float32).T
+        return np.stack([xx, xy, xz, xy, yy, yz, xz, yz, zz], axis=1).reshape(-1, 3, 3)
+
+    @property
+    def rgba(self) -> np.ndarray:
+        """(N,4) uint8."""
+        return np.ascontiguousarray(self.buffer[:, 7]).view(np.uint8).reshape(-1, 4)
+
+    def packed(self, highlight_fractured: bool) -> np.ndarray:
+        """The buffer to send: as prepared, or with fractured Gaussians in :data:`HIGHLIGHT_RGB`
+        (their opacity kept)."""
+        if not highlight_fractured or not self.fractured.any():
+            return self.buffer
+        buffer = self.buffer.copy()
+        rgba = self.rgba
+        rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
+        buffer[:, 7] = rgba.view(np.uint32).reshape(-1)
+        return buffer
+
+
+def to_uint8(values: np.ndarray) -> np.ndarray:
+    """[0,1] floats as rounded uint8."""
+    return (np.clip(values, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+
+
+def pack_splats(centers: np.ndarray, covariances: np.ndarray, rgbs: np.ndarray,
+                opacities: np.ndarray) -> np.ndarray:
+    """(N,8) uint32 in viser's splat layout (see :class:`ObjectSplats`) from float arrays:
+    centres (N,3), covariances (N,3,3), RGB (N,3) and opacities (N,) in [0,1]."""
+    count = centers.shape[0]
+    buffer = np.zeros((count, 8), np.uint32)
+    buffer[:, 0:3] = np.ascontiguousarray(centers, np.float32).view(np.uint32)
+    upper = covariances.reshape(count, 9)[:, [0, 1, 2, 4, 5, 8]]
+    buffer[:, 4:7] = np.ascontiguousarray(upper, np.float16).view(np.uint32)
+    rgba = np.empty((count, 4), np.uint8)
+    rgba[:, :3] = to_uint8(rgbs)
+    rgba[:, 3] = to_uint8(opacities.reshape(count))
+    buffer[:, 7] = rgba.view(np.uint32).reshape(count)
+    return buffer
+
+
+@dataclass(frozen=True)
+class SplatFrame:
+    """All objects' splats of one frame plus what the GUI shows about it."""
+
+    index: int
+    objects: list[ObjectSplats]          # one per object, in scene order (possibly empty)
+    unit_scale: float                    # viewer units per world unit
+    gaussians: int                       # Gaussians drawn (all objects)
+    fpgo_gaussians: int                  # of which FPGO made
+    fractured_particles: int             # particles with the latched fracture flag
+    prepare_ms: float = 0.0              # frame Gaussians + conversion, in the background
+
+
+def unit_scale_for(lower: np.ndarray, upper: np.ndarray) -> float:
+    """Viewer units per world unit for a scene whose bounds are ``lower``..``upper``."""
+    diagonal = float(np.linalg.norm(np.asarray(upper, np.float64) - np.asarray(lower, np.float64)))
+    return VIEWER_EXTENT / diagonal if diagonal > 0 else 1.0
+
+
+def dc_colours(sh: np.ndarray) -> np.ndarray:
+    """RGB (N,3) of the SH DC band (N,K,3): the colour averaged over view directions."""
+    return np.clip(SH_C0 * sh[:, 0, :] + 0.5, 0.0, 1.0)
+
+
+def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: float,
+                  fractured_particles: torch.Tensor | None = None) -> list[ObjectSplats]:
+    """Split ``gaussians`` by object, convert and pack them (see the module docstring).
+
+    ``fractured_particles`` (bool per particle) marks the Gaussians that follow a fractured
+    particle; FPGO's own Gaussians always count as fractured.
+    """
+    def numpy(values: torch.Tensor) -> np.ndarray:   # numpy from here: no torch thread pool
+        return values.detach().cpu().numpy()
+
+    fractured = numpy(gaussians.is_fpgo).copy()
+    if fractured_particles is not None and len(gaussians):
+        following = numpy(gaussians.particle)
+        valid = following >= 0
+        fractured[valid] |= numpy(fractured_particles.bool())[following[valid]]
+    object_id = numpy(gaussians.object_id)
+    order = None
+    if object_id.size and (np.diff(object_id) < 0).any():   # FPGO may append out of order
+        order = np.argsort(object_id, kind="stable")
+        object_id, fractured = object_id[order], fractured[order]
+
+    def column(values: torch.Tensor) -> np.ndarray:
+        array = numpy(values.float())
+        return array[order] if order is not None else array
+
+    buffer = pack_splats(column(gaussians.means) * unit_scale,
+                         column(gaussians.covariances) * (unit_scale * unit_scale),
+                         dc_colours(column(gaussians.sh[:, :1])), column(gaussians.opacities))
+    bounds = np.searchsorted(object_id, np.arange(object_count + 1))
+    return [ObjectSplats(buffer[bounds[i]:bounds[i + 1]], fractured[bounds[i]:bounds[i + 1]])
+            for i in range(object_count)]
+
+
+__all__ = ["HIGHLIGHT_RGB", "ObjectSplats", "SplatFrame", "VIEWER_EXTENT", "dc_colours",
+           "object_splats", "pack_splats", "to_uint8", "unit_scale_for"]
