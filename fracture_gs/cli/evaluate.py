@@ -199,6 +199,8 @@ def run_experiments(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     from fracture_gs.experiments.runner import RunFailed
+    from fracture_gs.render.frame_gaussians import ModelError
+    from fracture_gs.sim.folder import SimulationError
 
     args = build_parser().parse_args(argv)
     try:
@@ -207,7 +209,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.model_path is not None:
             return run_model(args)
         return run_experiments(args)
-    except EvaluationError as exc:
+    except (EvaluationError, ModelError, SimulationError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
