@@ -264,3 +264,23 @@ def test_binding_draws_each_referenced_gaussian_once_with_its_rest_offset(tmp_pa
     assert np.allclose(gaussians.means.numpy(), expected, atol=1e-5)   # rest offset kept
     assert read_ply(str(next((tmp_path / "model").rglob("point_cloud.ply")))).num_gaussians == \
         model.num_gaussians
+
+
+def test_spacing_from_train_py_particles_json_is_the_sparser_set(tmp_path: Path):
+    # train.py writes surface_spacing + interior_particle_size: d_c must connect the sparser set
+    import json
+
+    from fracture_gs.render.model_folder import model_spacing
+
+    path = tmp_path / "particles.json"
+    path.write_text(json.dumps({"surface_spacing": 0.0075, "interior_particle_size": 0.02,
+                                "n_interior": 83747}))
+    assert model_spacing(tmp_path) == pytest.approx(0.02)
+    path.write_text(json.dumps({"surface_spacing": 0.0075, "interior_particle_size": 0.02,
+                                "n_interior": 0}))          # surface only (--nv 0)
+    assert model_spacing(tmp_path) == pytest.approx(0.0075)
+    path.write_text(json.dumps({"spacing": 0.01, "surface_spacing": 0.5}))
+    assert model_spacing(tmp_path) == pytest.approx(0.01)
+    path.write_text(json.dumps({"interior_particle_size": 0.02}))
+    with pytest.raises(ModelError, match="particles.json: no valid"):
+        model_spacing(tmp_path)

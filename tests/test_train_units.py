@@ -248,3 +248,57 @@ def test_ssim_and_psnr() -> None:
     z = x.clone().requires_grad_(True)
     (1 - ssim(z, y)).backward()
     assert z.grad is not None and torch.isfinite(z.grad).all()
+
+
+def _pit_depth_map(view: int, eye: np.ndarray, size: int, inside) -> "DepthMap":
+    """Depth map (camera z) of the first point along each pixel's ray where ``inside`` holds,
+    found by marching (what a perfect stereo matcher would measure)."""
+    from fracture_gs.recon.carving import DepthMap
+    camera = Camera.look_at(eye, (0, 0, 0), (0, 1, 0), fov_x_rad=0.9, width=size, height=size)
+    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    local = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
+                      np.ones_like(column)], -1).reshape(-1, 3)
+    camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
+    steps = np.linspace(2.0, 4.0, 401)           # the cube lies between depths 2.4 and 3.6
+    points = (steps[None, :, None] * local[:, None, :]) @ camera_to_world[:3, :3].T \
+        + camera_to_world[:3, 3]
+    hit = inside(points)
+    first = np.where(hit.any(axis=1), steps[hit.argmax(axis=1)], np.nan)
+    return DepthMap(view, camera, first.reshape(size, size).astype(np.float32))
+
+
+def test_carving_removes_the_free_space_that_depth_maps_see_and_nothing_else() -> None:
+    """The hull is a full cube; the object has a cylindrical pit in its top that cameras
+    above see into. Carving must open the pit and keep the solid."""
+    from fracture_gs.recon.carving import CarveSettings, carve_with_depth
+    grid = VoxelGrid((-1.0, -1.0, -1.0), 2.0 / 32, (33, 33, 33))
+    nodes = grid.node_positions(dtype=torch.float64).numpy()
+    half = 0.6
+    cube = np.max(np.abs(nodes) - half, axis=-1)                     # hull: cube SDF (inside)
+    hull = torch.from_numpy(cube).float()
+
+    def inside(points: np.ndarray) -> np.ndarray:
+        in_cube = np.all(np.abs(points) < half, axis=-1)
+        in_pit = (np.hypot(points[..., 0], points[..., 1]) < 0.3) & (points[..., 2] > 0.2)
+        return in_cube & ~in_pit
+
+    eyes = [np.array([0.4 * math.cos(a), 0.4 * math.sin(a), 3.0])
+            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
+    maps = [_pit_depth_map(v, eye, 48, inside) for v, eye in enumerate(eyes)]
+    carved, count = carve_with_depth(hull, grid, maps, CarveSettings(votes=2, margin_voxels=2.0))
+    assert count > 0
+
+    def value(point: tuple[float, float, float]) -> float:
+        return float(sample_dense(carved.double(), grid,
+                                  torch.tensor([point], dtype=torch.float64))[0])
+
+    assert value((0.0, 0.0, 0.45)) > 0          # the pit is open
+    assert value((0.05, -0.05, 0.35)) > 0
+    assert value((0.0, 0.0, -0.2)) < 0          # below the pit bottom: solid
+    assert value((0.45, 0.45, 0.45)) < 0        # beside the pit: solid
+    assert value((0.0, 0.0, -0.45)) < 0
+    # nothing outside the pit's cylinder (plus a few voxels of smoothing) changed sign
+    radius = np.hypot(nodes[..., 0], nodes[..., 1])
+    flipped = (carved.numpy() > 0) & (cube < 0)
+    assert flipped.any() and np.all(radius[flipped] < 0.3 + 3 * grid.voxel)
+    assert np.all(nodes[..., 2][flipped] > 0.2 - 3 * grid.voxel)

@@ -8,26 +8,26 @@ fixed at the margin (a truncated SDF). A ray is rendered with the unbiased NeuS 
 
     alpha_i = max(0, (Phi_s(f_i) - Phi_s(f_{i+1})) / Phi_s(f_i)),   Phi_s(x) = sigmoid(s x),
 
-with weights w_i = alpha_i prod_{j<i} (1 - alpha_j). The colour field is image-based: the
-colour of a sample point x as seen by the ray's view is compared with the colours of x's
-projections into the K nearest training views (photo-consistency, as in multi-view stereo
-and Geo-NeuS), so the photometric term is the expected colour disagreement along the ray,
+with weights w_i = alpha_i prod_{j<i} (1 - alpha_j). The colour field is image-based (as in
+multi-view stereo and Geo-NeuS) rather than learned: a sample point x is projected into the
+K training views nearest to the ray's view and read there. Rays come in patches of
+``patch`` x ``patch`` pixels; the photometric term is 1 - NCC between the reference patch
+and the patch that each neighbour view sees at the rendered (weight-averaged) surface, the
+best half of the neighbours counting (robust to occlusion and highlights) and each patch
+weighted by its contrast (texture-less patches carry no depth cue). It is small only where
+the rays meet the surface that the other views see; no colour has to be learned first, so
+the refinement converges within the few hundred ray batches a CPU can afford. Further
+terms: a binary cross-entropy between rendered opacity and the mask, an eikonal term
+``(|grad f| - 1)^2`` at the ray samples and at nodes next to them, and a Laplacian
+smoothness term (in voxel units).
 
-    L_photo = sum_i w_i e(x_i) + (1 - sum_i w_i) |background - pixel|,
-
-e(x) = mean of the smallest half of the K per-view L1 colour differences (robust to
-occlusion and highlights). It is small only where the ray meets the surface the other views
-see, which is what moves the surface into concavities that silhouettes cannot see (a bowl's
-cavity): no colour has to be learned first, so the refinement converges within the few
-thousand ray batches a CPU can afford. Further terms: a binary cross-entropy between
-rendered opacity and the mask, an eikonal term ``(|grad f| - 1)^2`` at the ray samples and
-at nodes next to them, and a Laplacian smoothness term (in voxel units).
-``1/s`` (the width of the opacity transition) follows a geometric schedule from several
-coarse voxels (so that the rendering weight reaches well behind the visual hull's surface
-and the photometric term can pull the surface into a cavity) down to half a fine voxel. A gradient-free pre-pass over the
-whole ray finds the interval that carries the weight, the differentiable pass samples that
-interval densely. The run is coarse-to-fine: the first part at half the resolution, then
-the SDF is upsampled.
+The large changes that silhouettes cannot see (a bowl's cavity) are made before this stage
+by stereo carving (:mod:`fracture_gs.recon.carving`); this stage polishes the carved SDF.
+``1/s`` (the width of the opacity transition) follows a geometric schedule from
+``initial_width_voxels`` (coarse voxels) to ``final_width_voxels`` (fine voxels). A
+gradient-free pre-pass over the whole ray finds the interval that carries the weight, the
+differentiable pass samples that interval densely. With ``coarse_fraction`` > 0 the first
+part of the run is at half the resolution, after which the SDF is upsampled.
 """
 from __future__ import annotations
 

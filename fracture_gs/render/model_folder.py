@@ -38,16 +38,30 @@ def latest_point_cloud(model_dir: Path) -> Path:
 
 
 def model_spacing(model_dir: Path | None) -> float | None:
-    """Rest particle spacing (model frame) from ``particles.json``, or None without one."""
+    """Rest particle spacing (model frame) from ``particles.json``, or None without one.
+
+    Two layouts are read: ``{"spacing": s}`` (written by :func:`write_model_folder`) and the one
+    ``train.py`` writes, with ``surface_spacing`` (Poisson-disk radius of the surface particles)
+    and ``interior_particle_size`` (mean spacing of the interior samples, ``n_interior`` of them).
+    For the latter the larger of the two counts: d_c = 1.5 × spacing must connect the sparser
+    of the two particle sets, or intact bodies would fall apart into hidden "fragments".
+    """
     if model_dir is None:
         return None
     path = model_dir / PARTICLES_JSON
     if not path.is_file():
         return None
     try:
-        spacing = float(json.loads(path.read_text())["spacing"])
+        content = json.loads(path.read_text())
+        if "spacing" in content:
+            spacing = float(content["spacing"])
+        else:
+            spacing = float(content["surface_spacing"])
+            if int(content.get("n_interior", 0)) > 0:
+                spacing = max(spacing, float(content["interior_particle_size"]))
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ModelError(f"{path}: no valid 'spacing' ({type(exc).__name__})") from None
+        raise ModelError(f"{path}: no valid 'spacing' or 'surface_spacing' "
+                         f"({type(exc).__name__})") from None
     if not spacing > 0:
         raise ModelError(f"{path}: spacing must be > 0, got {spacing}")
     return spacing
