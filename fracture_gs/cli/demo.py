@@ -51,6 +51,7 @@ class Profile:
     views: int
     render_size: int
     window: int = 5
+    frame_dt: float = 0.0167
 
 
 PROFILES = {
@@ -68,7 +69,7 @@ PROFILES = {
                     ("--sdf-res", "24", "--sdf-iters", "16", "--iterations", "24",
                      "--n-surface", "300", "--nv", "2", "--particle-res", "10",
                      "--sdf-rays", "256"),
-                    grid=32, frames=8, views=2, render_size=64, window=3),
+                    grid=32, frames=6, views=2, render_size=64, window=3, frame_dt=0.008),
 }
 
 # Table 1 of the paper (teapot, table top, legs) with densities in kg/m^3; the legs are elastic
@@ -107,7 +108,7 @@ def _placed(points: np.ndarray, scale: float, rotate_deg: tuple[float, float, fl
 
 
 def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "collision",
-               name: str = "demo_teapot_table") -> dict:
+               name: str = "demo_teapot_table", frame_dt: float = 0.0167) -> dict:
     """The demo's scene: the trained table standing on the ground, the trained teapot thrown
     down onto its top. Sizes and positions come from the trained particles' bounds (a coarse
     reconstruction is larger than the object), so the scene fits the unit domain."""
@@ -125,7 +126,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
     return {
         "name": name if mode == "collision" else f"{name}_mls",
         "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid},
-        "frames": frames, "frame_dt": 0.0167, "gravity": [0, 0, -9.8],
+        "frames": frames, "frame_dt": frame_dt, "gravity": [0, 0, -9.8],
         "contact": {"mode": mode, "strength": 1.0, "friction": 0.1}, "cfl": 0.3,
         "boundaries": [{"type": "ground", "height": ground, "friction": 0.5},
                        {"type": "box", "condition": "slip"}],
@@ -211,7 +212,7 @@ def stage_train(demo: Demo) -> None:
 def stage_scene(demo: Demo) -> None:
     for mode in ("collision", "mls"):
         scene = demo_scene(demo.model("teapot"), demo.model("table"), demo.profile.grid,
-                           demo.profile.frames, mode)
+                           demo.profile.frames, mode, frame_dt=demo.profile.frame_dt)
         path = demo.scene_path(mode)
         path.parent.mkdir(parents=True, exist_ok=True)
         write_text_atomic(path, "# written by demo.py: the trained teapot dropped on the "
@@ -291,6 +292,10 @@ def run_demo(demo: Demo) -> dict:
     demo.out.mkdir(parents=True, exist_ok=True)
     if demo.log_path.is_file() and not demo.force:
         demo.log = json.loads(demo.log_path.read_text())
+    if demo.log.get("profile", demo.profile.name) != demo.profile.name:
+        print(f"[demo] {demo.out} holds a '{demo.log['profile']}' run: redoing every stage "
+              f"for '{demo.profile.name}'")
+        demo.log = {}
     demo.log.setdefault("profile", demo.profile.name)
     stages = demo.log.setdefault("stages", {})
     redo_from = None

@@ -74,6 +74,12 @@ def build_parser() -> argparse.ArgumentParser:
                             help="override domain.grid of the experiment scenes")
     experiment.add_argument("--configs", default="configs",
                             help="folder of the experiment scene YAML files (default configs)")
+    experiment.add_argument("--nv-values", type=int, nargs="+", default=None, metavar="NV",
+                            help="N_v of the nv-sweep (default 0 2 4 8 16 32; the densest is "
+                            "the reference)")
+    experiment.add_argument("--alpha0-values", type=float, nargs="+", default=None,
+                            metavar="A0", help="alpha0 of the hardening sweep (default ln 0.99, "
+                            "ln 0.97, ln 0.94)")
     experiment.add_argument("--force", action="store_true",
                             help="re-run simulations whose output exists")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -183,13 +189,22 @@ def run_experiments(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise EvaluationError(f"--workers {args.workers}: must be >= 1")
+    if args.nv_values is not None and (len(args.nv_values) < 2 or min(args.nv_values) < 0):
+        raise EvaluationError("--nv-values: give at least two values >= 0")
+    if args.alpha0_values is not None and max(args.alpha0_values) > 0:
+        raise EvaluationError("--alpha0-values: alpha0 = ln(J_p0) must be <= 0")
     device = _device(args.device)
+    extra = {}
+    if args.nv_values is not None:
+        extra["nv_values"] = tuple(sorted(set(args.nv_values)))
+    if args.alpha0_values is not None:
+        extra["alpha0_values"] = tuple(args.alpha0_values)
     settings = ExperimentSettings(
         configs=Path(args.configs), out_root=Path(args.out) if args.out else
         Path("output") / "experiments", workers=args.workers, ray_address=args.ray,
         frames=args.frames, grid=args.grid, force=args.force, device=device,
         eval_options=_options(args, device), weights_dir=args.weights_dir,
-        lpips=not args.no_lpips, fid=not args.no_fid, progress=not args.quiet)
+        lpips=not args.no_lpips, fid=not args.no_fid, progress=not args.quiet, **extra)
     names = EXPERIMENTS if args.experiment == "all" else (args.experiment,)
     for name in names:
         run_experiment(name, settings)
