@@ -14,7 +14,7 @@ from fracture_gs.report.markdown import (COMPARISON_HEADER, PAPER_ABLATION, comp
                                          unavailable_notes, write_report)
 from fracture_gs.report.plots import diagnostics_plots, frame_strip
 
-PAPER_ROWS = [[f"paper: {name}", *values, "—", "paper Fig. 5"]
+PAPER_ROWS = [[f"paper: {name}", *(f"{v:g}" for v in values), "—", "paper Fig. 5"]
               for name, values in PAPER_ABLATION.items()]
 
 
