@@ -175,7 +175,7 @@ class Demo:
         write_text_atomic(self.log_path, json.dumps(self.log, indent=2) + "\n")
 
 
-def _quiet_call(function: Callable[[], int], what: str) -> None:
+def _require_success(function: Callable[[], int], what: str) -> None:
     """Run a command-line main(); its stdout goes to the console, a non-zero status stops."""
     status = function()
     if status != 0:
@@ -196,7 +196,7 @@ def stage_data(demo: Demo) -> None:
                 str(p.n_test), "--spp", str(p.spp), "--grid", str(p.mesh_grid)]
         if demo.force and folder.exists():
             argv.append("--force")
-        _quiet_call(lambda: synthetic_main(argv), f"generating the {name} dataset")
+        _require_success(lambda: synthetic_main(argv), f"generating the {name} dataset")
 
 
 def stage_train(demo: Demo) -> None:
@@ -206,7 +206,7 @@ def stage_train(demo: Demo) -> None:
         argv = ["-s", str(demo.data / name), "-m", str(demo.model(name)), "-w",
                 *demo.profile.train_args, "--checkpoint_every", "0"]
         print(f"[demo] train.py {' '.join(argv)}", flush=True)
-        _quiet_call(lambda: train_main(argv), f"training the {name}")
+        _require_success(lambda: train_main(argv), f"training the {name}")
 
 
 def stage_scene(demo: Demo) -> None:
@@ -348,46 +348,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
-    from fracture_gs.experiments.runner import RunFailed
-    from fracture_gs.render.frame_gaussians import ModelError
-    from fracture_gs.render.views import ViewSpecError
-    from fracture_gs.sim.folder import SimulationError
+    from fracture_gs.cli.evaluate import device_from_option
+    from fracture_gs.cli.exit_codes import run_guarded
 
     args = build_parser().parse_args(argv)
-    if args.quick and args.profile not in (None, "quick"):
-        print(f"error: --quick and --profile {args.profile} contradict each other", file=sys.stderr)
-        return 2
     profile = PROFILES["quick" if args.quick else (args.profile or "default")]
     out = Path(args.out) if args.out else Path("output") / (
         "demo" if profile.name == "default" else f"demo_{profile.name}")
     data = Path(args.data) if args.data else (Path("data") if profile.name == "default"
                                                else out / "data")
-    if args.workers < 1:
-        print(f"error: --workers {args.workers}: must be >= 1", file=sys.stderr)
-        return 2
-    if args.device == "cuda" and not torch.cuda.is_available():
-        print("error: --device: cuda was requested but no CUDA device is available",
-              file=sys.stderr)
-        return 2
-    device = torch.device(args.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    if out.exists() and not out.is_dir():
-        print(f"error: --out {out}: exists and is not a folder", file=sys.stderr)
-        return 2
-    demo = Demo(out=out, data=data, profile=profile, force=args.force, device=device,
-                weights_dir=args.weights_dir, workers=args.workers)
-    try:
-        run_demo(demo)
-    except (EvaluationError, ModelError, SimulationError, ViewSpecError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except RunFailed as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"interrupted; finished stages are kept in {demo.log_path} and skipped next time",
-              file=sys.stderr)
-        return 130
-    return 0
+
+    def run() -> None:
+        if args.quick and args.profile not in (None, "quick"):
+            raise EvaluationError(f"--quick and --profile {args.profile} contradict each other")
+        if args.workers < 1:
+            raise EvaluationError(f"--workers {args.workers}: must be >= 1")
+        if out.exists() and not out.is_dir():
+            raise EvaluationError(f"--out {out}: exists and is not a folder")
+        run_demo(Demo(out=out, data=data, profile=profile, force=args.force,
+                      device=device_from_option(args.device), weights_dir=args.weights_dir,
+                      workers=args.workers))
+
+    return run_guarded(run, f"interrupted; finished stages are kept in {out / 'stages.json'} "
+                       "and skipped next time")
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -86,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _device(name: str | None) -> torch.device:
+def device_from_option(name: str | None) -> torch.device:
+    """The --device choice (default: cuda when available); EvaluationError when unusable."""
     if name is None:
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
@@ -123,7 +124,7 @@ def _networks(args: argparse.Namespace, device: torch.device, fid: bool = True):
 def run_sim(args: argparse.Namespace) -> int:
     from fracture_gs.report.sim_report import evaluate_and_report, print_comparison
 
-    device = _device(args.device)
+    device = device_from_option(args.device)
     options = _options(args, device)
     sim = Path(args.sim)
     if args.mls and not args.compare:
@@ -156,7 +157,7 @@ def run_model(args: argparse.Namespace) -> int:
     from fracture_gs.report.markdown import table, write_report
     from fracture_gs.report.plots import frame_strip
 
-    device = _device(args.device)
+    device = device_from_option(args.device)
     model = Path(args.model_path)
     networks = _networks(args, device, fid=False)
     result = evaluate_model(model, networks, args.split, device)
@@ -193,7 +194,7 @@ def run_experiments(args: argparse.Namespace) -> int:
         raise EvaluationError("--nv-values: give at least two values >= 0")
     if args.alpha0_values is not None and max(args.alpha0_values) > 0:
         raise EvaluationError("--alpha0-values: alpha0 = ln(J_p0) must be <= 0")
-    device = _device(args.device)
+    device = device_from_option(args.device)
     extra = {}
     if args.nv_values is not None:
         extra["nv_values"] = tuple(sorted(set(args.nv_values)))
@@ -213,26 +214,15 @@ def run_experiments(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
-    from fracture_gs.experiments.runner import RunFailed
-    from fracture_gs.render.frame_gaussians import ModelError
-    from fracture_gs.sim.folder import SimulationError
+    from fracture_gs.cli.exit_codes import run_guarded
 
     args = build_parser().parse_args(argv)
-    try:
-        if args.sim is not None:
-            return run_sim(args)
-        if args.model_path is not None:
-            return run_model(args)
-        return run_experiments(args)
-    except (EvaluationError, ModelError, SimulationError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except RunFailed as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted; files written so far are complete", file=sys.stderr)
-        return 130
+    if args.sim is not None:
+        return run_guarded(lambda: run_sim(args), "interrupted; files written so far are complete")
+    if args.model_path is not None:
+        return run_guarded(lambda: run_model(args), "interrupted")
+    return run_guarded(lambda: run_experiments(args),
+                       "interrupted; finished simulations are kept and skipped next time")
 
 
 if __name__ == "__main__":  # pragma: no cover
