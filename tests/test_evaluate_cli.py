@@ -82,7 +82,7 @@ def test_psnr_of_render_folder_equals_hand_computation(sim: Path, tmp_path: Path
         for t, frame in enumerate(frames):
             mse = np.mean((_png(renders / view / f"{frame:05d}.png") - reference) ** 2)
             assert run["metrics"]["psnr"]["per_view"][v][t] == pytest.approx(
-                -10 * math.log10(mse), abs=1e-9)
+                -10 * math.log10(mse), abs=1e-6)   # images are float32 in [0, 1]
     assert run["metrics"]["fid"] == "unavailable: not requested"
 
 
