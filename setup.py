@@ -30,6 +30,7 @@ EXTRAS = {
     "synthetic": ["mitsuba==3.9.1"],      # also in requirements.txt: the demo and CI use it
     "viewer": ["viser>=1.1", "selenium>=4.51"],   # interactive viewer; selenium screenshots it
     "video": ["imageio-ffmpeg>=0.8"],     # mp4 writing without a system ffmpeg
+    "ray": ["ray>=2.9"],                  # evaluate.py --experiment ... --ray ADDRESS (sweeps on a cluster)
 }
 
 

@@ -1,0 +1,28 @@
+"""Exit statuses shared by ``evaluate.py`` and ``demo.py``: bad input is one ``error: ...`` line
+and status 2, a failed simulation 1, Ctrl-C 130."""
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+
+def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
+    """Call ``function`` and turn the project's input errors into exit statuses."""
+    from fracture_gs.experiments.runner import RunFailed
+    from fracture_gs.experiments.sim_eval import EvaluationError
+    from fracture_gs.render.frame_gaussians import ModelError
+    from fracture_gs.render.views import ViewSpecError
+    from fracture_gs.sim.folder import SimulationError
+
+    try:
+        status = function()
+    except (EvaluationError, ModelError, SimulationError, ViewSpecError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except RunFailed as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(interrupted, file=sys.stderr)
+        return 130
+    return 0 if status is None else int(status)

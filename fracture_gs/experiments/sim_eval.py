@@ -1,0 +1,183 @@
+"""Self-referenced fracture metrics of simulations (SPEC §7, paper App. A.3).
+
+For one *run* (a simulation folder rendered with or without FPGO): find the fracture onset
+(``metrics.onset``), render the reference frame and the window frames from every view with the
+project's one implementation of "the Gaussians of frame t" (:class:`SceneGaussians`), or read
+them from a ``render.py`` output folder, and hand them to ``metrics.protocol``.
+
+```python
+networks = MetricNetworks.load(torch.device("cpu"))
+result = evaluate_run(RunSpec("ours", Path("output/sims/teapot_table"), fpgo=True),
+                      EvalOptions(), networks)
+result.metrics.to_json()
+```
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from fracture_gs.fracture.fpgo import FPGOSettings
+from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
+from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
+from fracture_gs.render.frame_gaussians import SceneGaussians
+from fracture_gs.render.video import to_uint8
+from fracture_gs.render.views import View
+from fracture_gs.sim.folder import Simulation, SimulationError
+
+DEFAULT_RESOLUTION = (400, 400)
+_PNG_NAME = re.compile(r"^(\d{5,})\.png$")
+
+
+class EvaluationError(ValueError):
+    """Input that cannot be evaluated (one line naming the folder, file or option)."""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One evaluated variant: a simulation folder rendered with or without FPGO.
+
+    ``renders``: a ``render.py --sim`` output folder (``<view>/<frame:05d>.png``) to read the
+    images from instead of rendering them."""
+
+    label: str
+    sim: Path
+    fpgo: bool = True
+    renders: Path | None = None
+
+
+@dataclass(frozen=True)
+class EvalOptions:
+    """How runs are rendered and compared (the evaluate.py options)."""
+
+    views: str = "orbit:8"
+    resolution: tuple[int, int] = DEFAULT_RESOLUTION
+    window: int = DEFAULT_WINDOW
+    background: str = "white"
+    device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+    backend: str = "auto"
+    batch_size: int = 8
+    settings: FPGOSettings = field(default_factory=FPGOSettings)
+
+
+@dataclass
+class RunResult:
+    """Metrics of one run plus what the report shows of it."""
+
+    spec: RunSpec
+    window: FractureWindow
+    view_names: list[str]
+    metrics: SelfReferencedMetrics | None
+    strip: list[np.ndarray]          # first view: reference frame, then the window frames (uint8)
+    strip_frames: list[int]
+
+    def to_json(self) -> dict:
+        """Plain JSON for ``metrics.json``."""
+        return {"label": self.spec.label, "sim": str(self.spec.sim), "fpgo": self.spec.fpgo,
+                "renders": str(self.spec.renders) if self.spec.renders else None,
+                "window": self.window.to_json(), "views": self.view_names,
+                "metrics": self.metrics.to_json() if self.metrics is not None else None}
+
+
+def open_simulation(path: Path) -> Simulation:
+    """:meth:`Simulation.open` with its error turned into an :class:`EvaluationError`."""
+    try:
+        return Simulation.open(path)
+    except SimulationError as exc:
+        raise EvaluationError(str(exc)) from None
+
+
+def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
+    """The cameras of ``spec`` (``orbit:N`` / ``train`` / ``test`` / cameras.json), framed as
+    ``render.py`` frames them for the whole run."""
+    from fracture_gs.cli.render import resolve_views
+    from fracture_gs.render.views import ViewSpecError
+
+    try:
+        return resolve_views(spec, sim, sim.frames, resolution)
+    except ViewSpecError as exc:
+        raise EvaluationError(str(exc)) from None
+
+
+def render_frames(sim: Simulation, views: list[View], frames: list[int], fpgo: bool,
+                  options: EvalOptions, progress: bool = False) -> np.ndarray:
+    """``(frames, views, H, W, 3)`` uint8 renders of ``frames`` (the render.py pipeline:
+    :class:`SceneGaussians` + the rasterizer, FPGO on or off)."""
+    from tqdm import tqdm
+
+    device = options.device
+    scene = SceneGaussians.from_simulation(sim, device, options.settings)
+    cameras = [view.camera.to(device) for view in views]
+    background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
+    images = []
+    with torch.no_grad():
+        for index in tqdm(frames, desc=f"render {sim.scene.name}", unit="frame",
+                          disable=not progress, leave=False):
+            gaussians = scene.frame(sim.load_frame(index, device), fpgo=fpgo,
+                                    backend=options.backend)
+            images.append([to_uint8(gaussians.rasterize(camera, background, options.backend)["rgb"])
+                           for camera in cameras])
+    return np.asarray(images, dtype=np.uint8)
+
+
+def rendered_view_names(folder: Path) -> list[str]:
+    """View sub-folders of a ``render.py`` output folder (those holding numbered PNGs)."""
+    if not folder.is_dir():
+        raise EvaluationError(f"{folder}: no such render folder")
+    names = sorted(d.name for d in folder.iterdir()
+                   if d.is_dir() and any(_PNG_NAME.match(f.name) for f in d.iterdir()))
+    if not names:
+        raise EvaluationError(f"{folder}: no <view>/<frame>.png images (not a render.py --sim "
+                              "output folder)")
+    return names
+
+
+def read_rendered_frames(folder: Path, view_names: list[str], frames: list[int]) -> np.ndarray:
+    """``(frames, views, H, W, 3)`` uint8 images read from a render.py output folder."""
+    images = []
+    for index in frames:
+        row = []
+        for name in view_names:
+            path = folder / name / f"{index:05d}.png"
+            image = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+            if image is None:
+                raise EvaluationError(f"{path}: missing or unreadable (render frame {index} "
+                                      "of every view first)")
+            row.append(image[..., ::-1])
+        if len({im.shape for im in row}) != 1:
+            raise EvaluationError(f"{folder}: views of frame {index} differ in size")
+        images.append(row)
+    return np.ascontiguousarray(np.asarray(images, dtype=np.uint8))
+
+
+def evaluate_run(spec: RunSpec, options: EvalOptions, networks: MetricNetworks,
+                 progress: bool = False) -> RunResult:
+    """Onset, window and self-referenced PSNR / LPIPS / FID of one run (module docstring)."""
+    sim = open_simulation(spec.sim)
+    try:
+        window = fracture_window_from_simulation(spec.sim, options.window)
+    except (FileNotFoundError, ValueError) as exc:
+        raise EvaluationError(str(exc)) from None
+    if spec.renders is not None:
+        view_names = rendered_view_names(spec.renders)
+    else:
+        views = evaluation_views(sim, options.views, options.resolution)
+        view_names = [view.name for view in views]
+    if not window.usable:
+        return RunResult(spec, window, view_names, None, [], [])
+    frames = [window.reference_frame, *window.window_frames]
+    if spec.renders is not None:
+        images = read_rendered_frames(spec.renders, view_names, frames)
+    else:
+        images = render_frames(sim, views, frames, spec.fpgo, options, progress)
+    as_float = torch.from_numpy(images).float() / 255.0          # (F, V, H, W, 3)
+    reference = as_float[0]
+    window_images = as_float[1:].permute(1, 0, 2, 3, 4).contiguous()   # (V, T, H, W, 3)
+    metrics = self_referenced_metrics(reference, window_images, networks, options.batch_size)
+    return RunResult(spec, window, view_names, metrics, [images[i, 0] for i in range(len(frames))],
+                     frames)

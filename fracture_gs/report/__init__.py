@@ -1,0 +1,1 @@
+"""Evaluation reports: plots (:mod:`.plots`) and markdown (:mod:`.markdown`)."""

@@ -1,0 +1,89 @@
+"""The evaluation folder of one or more runs: ``metrics.json``, ``report.md``, the momentum and
+energy plots of every simulation, and a frame strip (reference frame + window, first view)."""
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from fracture_gs.experiments.sim_eval import EvalOptions, RunResult, RunSpec, evaluate_run
+from fracture_gs.metrics.protocol import MetricNetworks
+from fracture_gs.mpm.output import write_text_atomic
+from fracture_gs.report.markdown import (COMPARISON_HEADER, PAPER_ABLATION, comparison_rows, table,
+                                         unavailable_notes, write_report)
+from fracture_gs.report.plots import diagnostics_plots, frame_strip
+
+PAPER_ROWS = [[f"paper: {name}", *(f"{v:g}" for v in values), "—", "paper Fig. 5"]
+              for name, values in PAPER_ABLATION.items()]
+
+
+def _slug(label: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in label.lower()).strip("_") or "run"
+
+
+def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks: MetricNetworks,
+                        out_dir: Path, title: str, with_paper: bool = False,
+                        progress: bool = False) -> dict:
+    """Evaluate every run, write ``out_dir``'s files and return the metrics.json content."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    results: list[RunResult] = [evaluate_run(spec, options, networks, progress) for spec in specs]
+    runs = [result.to_json() for result in results]
+
+    sections: list[tuple[str, str]] = []
+    rows = comparison_rows(runs) + (PAPER_ROWS if with_paper else [])
+    body = table(COMPARISON_HEADER, rows)
+    body += ("\nSelf-referenced protocol (SPEC §7, paper App. A.3): every window frame of every "
+             "view against that view's reference frame I_ref = t_f − 1; PSNR and LPIPS are means "
+             f"over {len(runs[0]['views'])} views × window frames, FID is between the set of "
+             "reference renders and the set of window renders. "
+             f"Views: `{options.views}` at {options.resolution[0]}×{options.resolution[1]} "
+             "(or the images of the render folder given).\n")
+    if with_paper:
+        body += ("\nThe paper's rows are its Fig. 5 (its renders, its N); FIDs from different N "
+                 "and different images are not comparable.\n")
+    for note in unavailable_notes(runs):
+        body += f"\n* {note}"
+    sections.append(("Fracture metrics", body))
+
+    strip_rows = [(result.spec.label, result.strip,
+                   [f"ref {f}" if i == 0 else f"t={f}" for i, f in enumerate(result.strip_frames)])
+                  for result in results if result.strip]
+    if strip_rows:
+        frame_strip(strip_rows, out_dir / "strip.png")
+        sections.append(("Frames", "Reference frame and window frames, first view:\n\n"
+                         "![frame strip](strip.png)\n"))
+
+    conservation = {}
+    for sim in dict.fromkeys(spec.sim for spec in specs):
+        prefix = "" if len({spec.sim for spec in specs}) == 1 else f"{_slug(sim.name)}_"
+        momentum_png, energy_png, summary = diagnostics_plots(sim, out_dir, prefix)
+        conservation[str(sim)] = summary.to_json()
+        sections.append((f"Momentum and energy: `{sim.name}`",
+                         table(("momentum drift (max, relative)", "energy rise (max, relative)",
+                                "start energy [J]", "largest momentum exchanged"),
+                               [[summary.momentum_drift, summary.energy_rise,
+                                 summary.energy_start, summary.exchanged_momentum]])
+                         + f"\n![momentum]({momentum_png.name})\n\n![energy]({energy_png.name})\n"))
+
+    metrics = {"title": title, "views": options.views, "resolution": list(options.resolution),
+               "window": options.window, "runs": runs, "conservation": conservation,
+               "seconds": time.perf_counter() - started}
+    write_text_atomic(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
+    write_report(out_dir / "report.md", title, sections)
+    return metrics
+
+
+def print_comparison(metrics: dict, with_paper: bool = False) -> str:
+    """The comparison table as plain text (what evaluate.py / demo.py print)."""
+    rows = comparison_rows(metrics["runs"]) + (PAPER_ROWS if with_paper else [])
+    width = max(len(str(r[0])) for r in rows) + 2
+    lines = [f"{'run':<{width}}{'PSNR':>9}{'LPIPS':>9}{'FID':>10}  N (ref/window)"]
+    for label, psnr, lpips, fid, n, _ in rows:
+        def cell(value: object, digits: int) -> str:
+            return f"{value:.{digits}f}" if isinstance(value, float) else str(value if value
+                                                                              is not None else "—")
+        lines.append(f"{label:<{width}}{cell(psnr, 2):>9}{cell(lpips, 3):>9}{cell(fid, 2):>10}  "
+                     f"{n if n else '—'}")
+    return "\n".join(lines)

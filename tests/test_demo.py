@@ -1,0 +1,57 @@
+"""demo.py end to end at the 'tiny' profile (48x48 images, 6 + 2 views, 300 Gaussians per
+object, 6 frames on a 32^3 grid): datasets, training, scene, both simulations, three renders,
+evaluation; then a second call that skips every finished stage (issue 13, acceptance 2)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.mitsuba
+def test_tiny_demo_runs_end_to_end_and_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    command = [sys.executable, str(ROOT / "demo.py"), "--profile", "tiny", "--out", str(out)]
+    started = time.perf_counter()
+    first = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path)
+    seconds = time.perf_counter() - started
+    assert first.returncode == 0, first.stderr[-2000:]
+    print(f"[demo] tiny profile end to end: {seconds:.0f} s")
+    for path in ("sims/teapot_table/renders/video_orbit_00.mp4",
+                 "sims/teapot_table/renders_nofpgo/video_orbit_00.mp4",
+                 "sims/teapot_table_mls/renders_nofpgo/video_orbit_00.mp4",
+                 "evaluation/metrics.json", "evaluation/report.md", "evaluation/strip.png",
+                 "models/teapot/particles.ply", "models/table/particles.ply"):
+        assert (out / path).is_file() and (out / path).stat().st_size > 0, path
+    metrics = json.loads((out / "evaluation" / "metrics.json").read_text())
+    assert [run["fpgo"] for run in metrics["runs"]] == [True, False, False]
+    assert "teapot_table_mls" in metrics["runs"][2]["sim"]
+    scene = (out / "scenes" / "teapot_table_mls.yaml").read_text()
+    assert "mode: mls" in scene
+    assert "ours (collision + FPGO)" in first.stdout and "paper: ours" in first.stdout
+    assert str(out / "evaluation" / "report.md") in first.stdout
+    log = json.loads((out / "stages.json").read_text())
+    assert set(log["stages"]) == {"data", "train", "scene", "simulate", "render", "evaluate"}
+
+    again = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert again.stdout.count("skipped") == 6
+    assert json.loads((out / "stages.json").read_text()) == log
+
+
+def test_demo_bad_options_are_one_line(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("x")
+    for argv, needle in ((["--quick", "--profile", "tiny"], "--quick"),
+                         (["--out", str(tmp_path / "file")], "--out"),
+                         (["--workers", "0"], "--workers")):
+        result = subprocess.run([sys.executable, str(ROOT / "demo.py"), *argv],
+                                capture_output=True, text=True, cwd=tmp_path)
+        assert result.returncode == 2
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and needle in lines[0], result.stderr

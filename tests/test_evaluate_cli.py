@@ -1,0 +1,148 @@
+"""evaluate.py on a tiny fracturing collision (795 particles, 8 frames) and a tiny trained model:
+the SPEC §7 protocol end to end, report files, missing weights, bad input (issue 13)."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from fracture_gs.cli.evaluate import main as evaluate_main
+from fracture_gs.cli.render import RenderOptions, render_simulation
+from fracture_gs.cli.simulate import run_simulation
+from fracture_gs.config.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY_SCENE = ROOT / "tests" / "data" / "tiny_collision.yaml"
+FIXTURE = ROOT / "tests" / "data" / "synthetic_fixture"
+SMALL = ["--views", "orbit:2", "--resolution", "48", "48", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sims") / "tiny_collision"
+    run_simulation(load_scene(TINY_SCENE), out, device=torch.device("cpu"), progress=False,
+                   log=open("/dev/null", "w"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def evaluated(sim: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("eval")
+    assert evaluate_main(["--sim", str(sim), "--out", str(out), *SMALL]) == 0
+    return out
+
+
+def _png(path: Path) -> np.ndarray:
+    return cv2.imread(str(path), cv2.IMREAD_COLOR)[..., ::-1].astype(np.float64) / 255.0
+
+
+def test_sim_evaluation_follows_the_protocol(sim: Path, evaluated: Path) -> None:
+    metrics = json.loads((evaluated / "metrics.json").read_text())
+    run, = metrics["runs"]
+    window = run["window"]
+    counts = np.loadtxt(sim / "diagnostics.csv", delimiter=",", skiprows=1, usecols=11)
+    onset = int(np.flatnonzero(counts > max(10, 0.001 * 795))[0])
+    assert window["onset_frame"] == onset and window["reference_frame"] == onset - 1
+    assert window["window_frames"] == list(range(onset + 1, min(onset + 5, 8) + 1))
+    values = run["metrics"]
+    frames = len(window["window_frames"])
+    assert np.asarray(values["psnr"]["per_view"]).shape == (2, frames)
+    assert np.asarray(values["lpips"]["per_view"]).shape == (2, frames)
+    assert values["n_reference"] == 2 and values["n_window"] == 2 * frames
+    assert isinstance(values["fid"], float) and values["fid"] > 0
+    assert 0 < values["lpips"]["mean"] < 1 and 5 < values["psnr"]["mean"] < 60
+    report = (evaluated / "report.md").read_text()
+    assert "N (ref / window)" in report and "biased" in report
+    for name in ("momentum.png", "energy.png", "strip.png"):
+        assert (evaluated / name).stat().st_size > 1000, name
+    conservation = metrics["conservation"][str(sim)]
+    assert conservation["momentum_drift"] < 1e-5   # no gravity, no wall reached
+    assert conservation["energy_rise"] <= 0.01
+
+
+def test_psnr_of_render_folder_equals_hand_computation(sim: Path, tmp_path: Path) -> None:
+    """--renders reads render.py's PNGs; PSNR recomputed here from the same files."""
+    renders = tmp_path / "renders"
+    render_simulation(RenderOptions(sim=sim, views="orbit:2", resolution=(40, 40), out=renders),
+                      log=open("/dev/null", "w"), progress=False)
+    out = tmp_path / "eval"
+    assert evaluate_main(["--sim", str(sim), "--renders", str(renders), "--out", str(out),
+                          "--no-fid", "--quiet"]) == 0
+    run, = json.loads((out / "metrics.json").read_text())["runs"]
+    ref, frames = run["window"]["reference_frame"], run["window"]["window_frames"]
+    for v, view in enumerate(sorted(p.name for p in renders.iterdir() if p.is_dir())):
+        reference = _png(renders / view / f"{ref:05d}.png")
+        for t, frame in enumerate(frames):
+            mse = np.mean((_png(renders / view / f"{frame:05d}.png") - reference) ** 2)
+            assert run["metrics"]["psnr"]["per_view"][v][t] == pytest.approx(
+                -10 * math.log10(mse), abs=1e-6)   # images are float32 in [0, 1]
+    assert run["metrics"]["fid"] == "unavailable: not requested"
+
+
+def test_missing_weights_are_reported_not_replaced(sim: Path, tmp_path: Path) -> None:
+    empty = tmp_path / "weights"
+    empty.mkdir()
+    out = tmp_path / "eval"
+    assert evaluate_main(["--sim", str(sim), "--out", str(out), "--weights-dir", str(empty),
+                          *SMALL]) == 0
+    values = json.loads((out / "metrics.json").read_text())["runs"][0]["metrics"]
+    assert values["lpips"].startswith("unavailable") and "alexnet.ckpt" in values["lpips"]
+    assert values["fid"].startswith("unavailable") and "default_1.pt" in values["fid"]
+    assert "alexnet.ckpt" in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--sim", "/nonexistent/sim"], "/nonexistent/sim"),
+    (["--sim", "SIM", "--window", "0"], "--window"),
+    (["--sim", "SIM", "--renders", "/nonexistent/r"], "/nonexistent/r"),
+    (["--sim", "SIM", "--mls", "SIM"], "--mls"),
+    (["-m", "/nonexistent/model"], "/nonexistent/model"),
+    (["--experiment", "momentum", "--configs", "/nonexistent/configs"], "momentum.yaml"),
+])
+def test_bad_input_is_one_line_and_exit_2(sim: Path, argv: list[str], needle: str,
+                                          tmp_path: Path) -> None:
+    argv = [str(sim) if a == "SIM" else a for a in argv]
+    result = subprocess.run([sys.executable, str(ROOT / "evaluate.py"), *argv, "--out",
+                             str(tmp_path / "o")], capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0]
+
+
+def test_compare_gives_the_ablation_rows(sim: Path, tmp_path: Path) -> None:
+    out = tmp_path / "eval"
+    assert evaluate_main(["--sim", str(sim), "--compare", "--mls", str(sim), "--out", str(out),
+                          "--no-fid", "--no-lpips", "--views", "orbit:1", "--resolution", "32",
+                          "32", "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert [r["fpgo"] for r in metrics["runs"]] == [True, False, False]
+    report = (out / "report.md").read_text()
+    assert "paper: ours" in report and "90.75" in report
+
+
+def test_static_model_metrics_match_the_pngs(tmp_path: Path) -> None:
+    from fracture_gs.cli.train import main as train_main
+
+    model = tmp_path / "teapot"
+    assert train_main(["-s", str(FIXTURE), "-m", str(model), "--sdf-res", "24", "--sdf-iters",
+                       "8", "--iterations", "16", "--n-surface", "300", "--nv", "2",
+                       "--particle-res", "10", "--sdf-rays", "256", "--quiet"]) == 0
+    assert evaluate_main(["-m", str(model), "--quiet"]) == 0
+    results = json.loads((model / "results.json").read_text())
+    (method, values), = results.items()
+    folder = model / "test" / method
+    names = sorted(p.name for p in (folder / "renders").glob("*.png"))
+    psnrs = [-10 * math.log10(np.mean((_png(folder / "renders" / n) - _png(folder / "gt" / n)) ** 2))
+             for n in names]
+    assert values["PSNR"] == pytest.approx(np.mean(psnrs), abs=1e-4)
+    assert 0 < values["SSIM"] <= 1 and 0 < values["LPIPS"] < 1
+    per_view = json.loads((model / "per_view.json").read_text())[method]
+    assert set(per_view["PSNR"]) == set(names)
+    assert (model / "evaluation" / "report.md").is_file()
