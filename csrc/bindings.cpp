@@ -5,6 +5,8 @@
 #include "mpm/material_bind.h"
 #include "mpm/mpm_bind.h"
 #include "raster/raster_bind.h"
+#include "fracture/fracture_bind.h"
+#include "spatial/spatial_bind.h"
 
 #ifdef _OPENMP
 #include <omp.h>
@@ -34,4 +36,6 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   fgs::register_materials(m);
   fgs::register_mpm(m);
   fgs::register_raster(m);
+  fgs::register_spatial(m);
+  fgs::register_fracture(m);
 }

@@ -36,16 +36,21 @@ def ply_property_names(sh_degree: int) -> list[str]:
             + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
-def write_ply(path: str, model: GaussianModel) -> None:
+def write_ply(path: str, model: GaussianModel, normals: torch.Tensor | None = None) -> None:
     """Write ``model`` as a 3DGS PLY (parent folders are created; the file appears only once
-    complete). Isotropic models repeat their log-scale in scale_0..2; normals are zero."""
+    complete). Isotropic models repeat their log-scale in scale_0..2; normals (N, 3) are zero
+    unless given (3DGS renderers ignore them)."""
     tensors = {name: value.cpu().float() for name, value in model.raw_tensors().items()}
     for name, value in tensors.items():
         if not torch.isfinite(value).all():
             raise ValueError(f"write_ply({path}): model parameter {name} contains NaN or Inf")
     count = model.num_gaussians
     rest = tensors["sh_rest"].transpose(1, 2).reshape(count, -1)  # channel-major
-    columns = torch.cat([tensors["means"], torch.zeros(count, 3),
+    if normals is None:
+        normals = torch.zeros(count, 3)
+    elif tuple(normals.shape) != (count, 3):
+        raise ValueError(f"write_ply({path}): normals must be ({count}, 3), got {tuple(normals.shape)}")
+    columns = torch.cat([tensors["means"], normals.detach().cpu().float(),
                          tensors["sh_dc"].reshape(count, 3), rest, tensors["opacity_logit"], tensors["log_scales"].expand(-1, 3),
                          tensors["quats"]], dim=1).numpy()
     names = ply_property_names(model.sh_degree)

@@ -1,0 +1,147 @@
+"""Holes in a rendered fracture, with and without FPGO (issue 11, acceptance 2).
+
+For every frame from the fracture onset on (first frame whose fractured count exceeds
+max(10, 0.1 % of the particles), SPEC §7) and each of ``--views`` orbit cameras, the frame is
+rendered with FPGO, with FPGO but lens Gaussians not ``exclusive``, and without FPGO (the
+PhysGaussian / GIC baseline). The object's silhouette is where its particles project, dilated by
+``--dilate`` projected rest spacings, which closes the gaps between neighbouring particles; the
+*hole fraction* is the share of silhouette pixels whose rendered alpha is below 0.5.
+
+Two silhouettes are reported: ``hole_fraction_*`` erodes the dilated one again by the same
+radius (a morphological closing: the object's own area, gaps closed), ``band_hole_fraction_*``
+keeps the plain dilation, which adds a band one spacing wide around the object where no splat
+of scale <= spacing/2 reaches alpha 0.5 — that band dominates the plain measure and rewards fat
+splats at the outline rather than filled fracture surfaces. Particles that FPGO drops as tiny
+fragments (below ``--min-fragment``) are left out of the silhouette for all renders, so all are
+judged on the same pixels.
+
+Usage: PYTHONPATH=. python benchmarks/fpgo_holes.py --sim output/sims/<name> [--views 4]
+           [--size 400] [--markdown]
+Prints one JSON object (per-frame numbers, both averaged over the views); ``--markdown`` adds a
+table for the README on stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from fracture_gs.cli.render import resolve_views
+from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
+from fracture_gs.metrics.onset import fracture_window_from_simulation
+from fracture_gs.render.camera import Camera
+from fracture_gs.render.frame_gaussians import SceneGaussians
+from fracture_gs.sim import Simulation
+
+
+def silhouette(points: torch.Tensor, camera: Camera, spacing: float,
+               dilate: float) -> tuple[np.ndarray, np.ndarray]:
+    """(closed, dilated) silhouettes (H, W) bool: pixels within ``dilate`` projected spacings of
+    a projected particle, and that set eroded again by the same disc."""
+    empty = np.zeros((camera.height, camera.width), bool)
+    if points.shape[0] == 0:
+        return empty, empty
+    uv, depth = camera.project(points)
+    front = depth > camera.near
+    uv, depth = uv[front], depth[front]
+    if depth.numel() == 0:
+        return empty, empty
+    mask = np.zeros((camera.height, camera.width), np.uint8)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    pixels = uv[inside].floor().long().numpy()
+    mask[pixels[:, 1], pixels[:, 0]] = 1
+    radius = max(1, int(round(dilate * spacing * camera.fx / float(depth.median()))))
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+    dilated = cv2.dilate(mask, kernel)
+    return cv2.erode(dilated, kernel).astype(bool), dilated.astype(bool)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sim", type=Path, required=True)
+    parser.add_argument("--views", type=int, default=4)
+    parser.add_argument("--size", type=int, default=400)
+    parser.add_argument("--dilate", type=float, default=1.0,
+                        help="silhouette dilation in projected rest spacings (default 1)")
+    parser.add_argument("--min-fragment", type=int, default=FPGOSettings().min_fragment)
+    parser.add_argument("--markdown", action="store_true")
+    args = parser.parse_args(argv)
+    sim = Simulation.open(args.sim)
+    settings = FPGOSettings(min_fragment=args.min_fragment)
+    scene = SceneGaussians.from_simulation(sim, settings=settings)
+    onset = fracture_window_from_simulation(sim.root).onset_frame
+    result: dict = {"sim": str(args.sim), "particles": len(sim.particles), "views": args.views,
+                    "size": args.size, "dilate_spacings": args.dilate, "onset": onset,
+                    "gaussians_no_fpgo": scene.num_gaussians, "frames": []}
+    if onset is None:
+        result["note"] = "no fracture onset in this run"
+        print(json.dumps(result, indent=1))
+        return 0
+    frames = [f for f in sim.frames if f >= onset]
+    views = resolve_views(f"orbit:{args.views}", sim, frames, (args.size, args.size))
+    fracture = scene.fracture
+    no_exclusive = replace(settings, exclusive=False)
+    labels = ("fpgo", "fpgo_no_exclusive", "no_fpgo")
+    for index in frames:
+        frame = sim.load_frame(index)
+        active = torch.ones(len(fracture.rows_by_object), dtype=torch.bool)
+        hidden = small_fragment_mask(frame.x, fracture, settings, active)
+        fpgo = scene.frame(frame, fpgo=True)
+        rendered = {"fpgo": fpgo, "no_fpgo": scene.frame(frame, fpgo=False),
+                    "fpgo_no_exclusive": replace(fpgo, exclusive=torch.zeros_like(fpgo.exclusive))}
+        holes = {(label, kind): 0 for label in labels for kind in ("closed", "band")}
+        pixels = {"closed": 0, "band": 0}
+        for view in views:
+            closed = np.zeros((args.size, args.size), bool)
+            band = np.zeros((args.size, args.size), bool)
+            for o, rows in enumerate(fracture.rows_by_object):
+                keep = rows[~hidden[rows]]
+                object_closed, object_band = silhouette(frame.x[keep], view.camera,
+                                                        float(fracture.object_spacing[o]),
+                                                        args.dilate)
+                closed |= object_closed
+                band |= object_band
+            pixels["closed"] += int(closed.sum())
+            pixels["band"] += int(band.sum())
+            for label, gaussians in rendered.items():
+                alpha = gaussians.rasterize(view.camera)["alpha"].numpy()
+                holes[(label, "closed")] += int((alpha[closed] < 0.5).sum())
+                holes[(label, "band")] += int((alpha[band] < 0.5).sum())
+        row = {"frame": index, "fractured": int(frame.fractured.sum()),
+               "gaussians_fpgo": len(fpgo), "silhouette_pixels": pixels["closed"]}
+        for label in labels:
+            row[f"hole_fraction_{label}"] = round(holes[(label, "closed")] / max(pixels["closed"], 1), 6)
+            row[f"band_hole_fraction_{label}"] = round(holes[(label, "band")] / max(pixels["band"], 1), 6)
+        result["frames"].append(row)
+        print(f"frame {index}: holes {row['hole_fraction_fpgo']:.5f} with FPGO "
+              f"({row['hole_fraction_fpgo_no_exclusive']:.5f} lenses not exclusive), "
+              f"{row['hole_fraction_no_fpgo']:.5f} without", file=sys.stderr)
+    rows = result["frames"]
+    for label in ("fpgo", "fpgo_no_exclusive"):
+        for prefix in ("", "band_"):
+            key = f"{prefix}hole_fraction_{label}"
+            base = f"{prefix}hole_fraction_no_fpgo"
+            result[f"{prefix}frames_lower_{label}"] = sum(r[key] < r[base] for r in rows)
+            result[f"{prefix}frames_higher_{label}"] = sum(r[key] > r[base] for r in rows)
+    for label in labels:
+        result[f"mean_hole_fraction_{label}"] = round(float(np.mean([r[f"hole_fraction_{label}"] for r in rows])), 6)
+        result[f"mean_band_hole_fraction_{label}"] = round(float(np.mean([r[f"band_hole_fraction_{label}"] for r in rows])), 6)
+    print(json.dumps(result, indent=1))
+    if args.markdown:
+        print("| frame | fractured | FPGO | FPGO, lenses not exclusive | no FPGO |", file=sys.stderr)
+        print("|---|---|---|---|---|", file=sys.stderr)
+        for r in rows:
+            print(f"| {r['frame']} | {r['fractured']} | {100 * r['hole_fraction_fpgo']:.3f} % | "
+                  f"{100 * r['hole_fraction_fpgo_no_exclusive']:.3f} % | "
+                  f"{100 * r['hole_fraction_no_fpgo']:.3f} % |", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

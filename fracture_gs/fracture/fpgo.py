@@ -1,0 +1,293 @@
+"""FPGO — Fracture Particles Gaussian Optimization (paper §3.2.2, App. A.4–A.6; SPEC §6.3).
+
+Applied to the Gaussians of one frame (the particles' own Gaussians, already following their
+particles), it returns the Gaussians to draw:
+
+1. the fractured set is the simulation's latched ``fractured`` flag;
+2. fragments (connected components of the d_c-neighbour graph of each object, d_c =
+   ``dc_factor`` × the object's rest particle spacing) with fewer than ``min_fragment``
+   particles are not drawn at all (App. A.6);
+3. fractured particles without a trained Gaussian (interior particles) get one: isotropic, scale
+   = spacing / 2, SH and opacity interpolated once in the rest configuration (inverse distance,
+   ``interpolation_k`` nearest surface Gaussians of the object);
+4. every fractured particle i looks up its ``k_neighbours`` nearest intact particles j of its
+   object within d_c (current positions, hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
+   σ the Gaussian's current size det(Σ)^(1/6), give one lens ellipsoid per overlapping pair
+   (:func:`fracture_gs.fracture.ops.lens_ellipsoids`), with g_i's opacity, SH and view rotation,
+   marked ``exclusive`` (unless ``FPGOSettings.exclusive`` is off); they replace g_i (and any
+   other Gaussian particle i drives). A fractured particle without an overlapping intact
+   neighbour keeps its Gaussian.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+import torch
+
+from fracture_gs.fracture.ops import LensEllipsoids, lens_ellipsoids
+from fracture_gs.fracture.spatial import component_roots, knn_within
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fracture_gs.render.frame_gaussians import FrameGaussians
+
+InteriorDeform = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
+
+
+@dataclass(frozen=True)
+class FPGOSettings:
+    """FPGO parameters (SPEC §6.3 defaults; ``min_fragment`` is ours: the paper gives none)."""
+
+    dc_factor: float = 1.5       # d_c = dc_factor × rest particle spacing
+    k_neighbours: int = 2        # intact neighbours per fractured particle (g_m, g_n)
+    k_sigma: float = 2.0         # sphere radius = k_sigma × Gaussian scale
+    min_fragment: int = 10       # fragments with fewer particles are not drawn
+    interpolation_k: int = 4     # surface Gaussians an interior particle's appearance comes from
+    exclusive: bool = True       # lens Gaussians are `exclusive` (SPEC §6.1: per pixel only the
+    #                              nearest one blends); False: they blend like any other
+
+    def __post_init__(self) -> None:
+        if not self.dc_factor > 0:
+            raise ValueError(f"dc_factor must be > 0, got {self.dc_factor}")
+        if not 1 <= self.k_neighbours <= 16:
+            raise ValueError(f"k_neighbours must be in 1..16, got {self.k_neighbours}")
+        if not self.k_sigma > 0:
+            raise ValueError(f"k_sigma must be > 0, got {self.k_sigma}")
+        if self.min_fragment < 1:
+            raise ValueError(f"min_fragment must be >= 1, got {self.min_fragment}")
+        if self.interpolation_k < 1:
+            raise ValueError(f"interpolation_k must be >= 1, got {self.interpolation_k}")
+
+
+@dataclass
+class FractureParticles:
+    """Constant per-particle data FPGO needs (built once per simulation, on the render device).
+
+    ``own_gaussian[p]`` is the row of particle p's trained (or flat-colour) Gaussian in the
+    frame's Gaussians, -1 for particles without one; for those, ``interior_row[p]`` indexes
+    ``interior_opacity`` / ``interior_sh`` (the interpolated appearance), else -1.
+    """
+
+    object_id: torch.Tensor         # (N,) int64
+    own_gaussian: torch.Tensor      # (N,) int64
+    interior_row: torch.Tensor      # (N,) int64
+    interior_opacity: torch.Tensor  # (I,)
+    interior_sh: torch.Tensor       # (I, K, 3)
+    rest_sigma: torch.Tensor        # (N,) rest size of each particle's Gaussian (spacing/2 if none)
+    object_spacing: torch.Tensor    # (O,) rest particle spacing per object (CPU float64)
+    object_rotation: torch.Tensor   # (O,3,3) rotation of each object's scene transform
+    rows_by_object: list[torch.Tensor]  # particle indices of each object
+    centre_gaussian: torch.Tensor   # (N,) row of the own Gaussian the particle drives, else -1
+
+
+@dataclass
+class FPGOStats:
+    """What one FPGO pass did (for timing.csv and tests)."""
+
+    fractured: int = 0            # fractured particles (latched flag)
+    hidden_particles: int = 0     # particles in fragments below min_fragment
+    interior_gaussians: int = 0   # Gaussians given to fractured interior particles
+    lens_gaussians: int = 0       # MVEE Gaussians drawn
+    replaced_particles: int = 0   # fractured particles whose Gaussians the lenses replaced
+    milliseconds: float = 0.0
+    detail_ms: dict[str, float] = field(default_factory=dict)
+
+
+def cube_root_abs_det(F: torch.Tensor) -> torch.Tensor:
+    """|det F|^(1/3) of (N,3,3) matrices (vectorised cofactor expansion)."""
+    det = (F[:, 0, 0] * (F[:, 1, 1] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 1])
+           - F[:, 0, 1] * (F[:, 1, 0] * F[:, 2, 2] - F[:, 1, 2] * F[:, 2, 0])
+           + F[:, 0, 2] * (F[:, 1, 0] * F[:, 2, 1] - F[:, 1, 1] * F[:, 2, 0]))
+    return det.abs().pow(1.0 / 3.0)
+
+
+def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings: FPGOSettings,
+                        active_objects: torch.Tensor, backend: str = "auto") -> torch.Tensor:
+    """(N,) bool: particles in a fragment (per object, d_c graph) below ``min_fragment``.
+    Only objects flagged in ``active_objects`` (O,) bool are searched."""
+    hidden = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
+    if settings.min_fragment <= 1:
+        return hidden
+    for o, rows in enumerate(particles.rows_by_object):
+        if not bool(active_objects[o]) or rows.numel() == 0:
+            continue
+        radius = settings.dc_factor * float(particles.object_spacing[o])
+        roots = component_roots(x.index_select(0, rows), radius, backend=backend)
+        sizes = torch.bincount(roots, minlength=rows.numel())
+        hidden[rows] = sizes[roots] < settings.min_fragment
+    return hidden
+
+
+GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
+                    "object_id", "is_fpgo", "particle")
+
+
+def neighbour_pairs(x: torch.Tensor, query: torch.Tensor, candidate: torch.Tensor,
+                    particles: FractureParticles, settings: FPGOSettings,
+                    active_objects: torch.Tensor, backend: str = "auto"
+                    ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(i, j) particle pairs: the ``k_neighbours`` nearest ``candidate`` particles j within d_c
+    of every ``query`` particle i, in the same object (SPEC §6.3 step 2)."""
+    pair_i, pair_j = [], []
+    for o, rows in enumerate(particles.rows_by_object):
+        if not bool(active_objects[o]):
+            continue
+        queries, points = rows[query[rows]], rows[candidate[rows]]
+        if queries.numel() == 0 or points.numel() == 0:
+            continue
+        d_c = settings.dc_factor * float(particles.object_spacing[o])
+        index, _ = knn_within(x.index_select(0, points), x.index_select(0, queries), d_c,
+                              settings.k_neighbours, backend=backend)
+        found = index >= 0
+        pair_i.append(queries[:, None].expand_as(index)[found])
+        pair_j.append(points[index[found]])
+    if not pair_i:
+        empty = torch.empty(0, dtype=torch.long, device=x.device)
+        return empty, empty
+    return torch.cat(pair_i), torch.cat(pair_j)
+
+
+def particle_spheres(rows: torch.Tensor, x: torch.Tensor, F_E: torch.Tensor,
+                     means: torch.Tensor, particles: FractureParticles,
+                     k_sigma: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Sphere (centre, radius) of the Gaussian of each particle in ``rows``: the mean of the
+    Gaussian it drives (the particle's position when it drives none) and k_sigma × the Gaussian's
+    current size, rest size × |det F_E|^(1/3) (= det(Σ_t)^(1/6) for its own Gaussian)."""
+    gaussian = particles.centre_gaussian[rows]
+    centre = torch.where((gaussian >= 0)[:, None], means[gaussian.clamp_min(0)], x[rows])
+    radius = k_sigma * particles.rest_sigma[rows] * cube_root_abs_det(F_E[rows])
+    return centre, radius
+
+
+def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
+               fractured: torch.Tensor, particles: FractureParticles, settings: FPGOSettings,
+               deform_interior: InteriorDeform,
+               backend: str = "auto") -> tuple[dict[str, torch.Tensor], FPGOStats]:
+    """The Gaussians to draw for one frame (a dict of the ``GAUSSIAN_COLUMNS``) and what FPGO did.
+
+    ``gaussians`` are the frame's base Gaussians (row ``own_gaussian[p]`` is particle p's own);
+    ``deform_interior(rows)`` returns (means, covariances, view_rotations) of the interpolated
+    Gaussians of the particles ``rows`` (isotropic spacing/2 at rest, following the particle).
+    """
+    started = time.perf_counter()
+    detail: dict[str, float] = {}
+    stats = FPGOStats(fractured=int(fractured.sum()))
+    columns = {name: getattr(gaussians, name) for name in GAUSSIAN_COLUMNS}
+    if stats.fractured == 0:
+        stats.milliseconds = (time.perf_counter() - started) * 1e3
+        return columns, stats
+    device = x.device
+    active = (torch.bincount(particles.object_id[fractured],
+                             minlength=len(particles.rows_by_object)) > 0).cpu()
+
+    tick = time.perf_counter()
+    hidden = small_fragment_mask(x, particles, settings, active, backend)
+    stats.hidden_particles = int(hidden.sum())
+    detail["fragments"] = (time.perf_counter() - tick) * 1e3
+
+    # fractured interior particles get their interpolated Gaussian (step 4)
+    tick = time.perf_counter()
+    query = fractured & ~hidden
+    interior = torch.nonzero(query & (particles.own_gaussian < 0)).flatten()
+    interior_deformed = dict(zip(("means", "covariances", "view_rotations"),
+                                 deform_interior(interior)))
+    detail["interior"] = (time.perf_counter() - tick) * 1e3
+
+    # k nearest intact neighbours (step 2) and the lens ellipsoids of the pairs (step 3)
+    tick = time.perf_counter()
+    pair_i, pair_j = neighbour_pairs(x, query, ~fractured & ~hidden, particles, settings, active,
+                                     backend)
+    detail["neighbours"] = (time.perf_counter() - tick) * 1e3
+    tick = time.perf_counter()
+    centre_i, radius_i = particle_spheres(pair_i, x, F_E, gaussians.means, particles,
+                                          settings.k_sigma)
+    centre_j, radius_j = particle_spheres(pair_j, x, F_E, gaussians.means, particles,
+                                          settings.k_sigma)
+    lens = lens_ellipsoids(centre_i, radius_i, centre_j, radius_j, settings.k_sigma,
+                           backend=backend)
+    valid = torch.nonzero(lens.valid).flatten()
+    replaced = torch.zeros_like(fractured)
+    replaced[pair_i[valid]] = True
+    stats.replaced_particles = int(replaced.sum())
+    stats.lens_gaussians = int(valid.numel())
+    detail["mvee"] = (time.perf_counter() - tick) * 1e3
+
+    tick = time.perf_counter()
+    out, stats.interior_gaussians = _assemble(columns, interior, interior_deformed, lens, valid,
+                                              pair_i, hidden, replaced, particles,
+                                              settings.exclusive)
+    detail["assemble"] = (time.perf_counter() - tick) * 1e3
+    stats.detail_ms = detail
+    stats.milliseconds = (time.perf_counter() - started) * 1e3
+    return out, stats
+
+
+def _gather_cat(parts: list[tuple[torch.Tensor, torch.Tensor]]) -> torch.Tensor:
+    """``torch.cat([source.index_select(0, index) for source, index in parts])`` with one copy."""
+    first = parts[0][0]
+    total = sum(int(index.numel()) for _, index in parts)
+    out = torch.empty((total,) + tuple(first.shape[1:]), dtype=first.dtype, device=first.device)
+    start = 0
+    for source, index in parts:
+        stop = start + int(index.numel())
+        torch.index_select(source, 0, index, out=out[start:stop])
+        start = stop
+    return out
+
+
+def _assemble(columns: dict[str, torch.Tensor], interior: torch.Tensor,
+              interior_deformed: dict[str, torch.Tensor], lens: LensEllipsoids,
+              valid: torch.Tensor, pair_i: torch.Tensor, hidden: torch.Tensor,
+              replaced: torch.Tensor, particles: FractureParticles,
+              exclusive: bool) -> tuple[dict[str, torch.Tensor], int]:
+    """The frame's Gaussians — base ones of particles neither hidden nor replaced, interpolated
+    ones of unreplaced fractured interior particles, and the lenses, which inherit opacity, SH
+    and view rotation from g_i (particle i's own Gaussian, or its interpolated one) — and the
+    number of interpolated ones."""
+    device = interior.device
+    keep_base = torch.nonzero(~(hidden | replaced)[columns["particle"]]).flatten()
+    keep_interior = torch.nonzero(~replaced[interior]).flatten()
+    kept = interior.index_select(0, keep_interior)
+    slot = torch.full_like(particles.own_gaussian, -1)  # particle -> row of interior
+    slot[interior] = torch.arange(interior.numel(), device=device)
+    owners = pair_i.index_select(0, valid)
+    own = particles.own_gaussian.index_select(0, owners)
+    lens_own = torch.nonzero(own >= 0).flatten()       # lenses whose g_i is a base Gaussian
+    lens_inner = torch.nonzero(own < 0).flatten()      # ... an interpolated one
+    own_rows = own.index_select(0, lens_own)
+    inner_owners = owners.index_select(0, lens_inner)
+    lens_order = torch.cat([valid.index_select(0, lens_own), valid.index_select(0, lens_inner)])
+    particle_order = torch.cat([lens_own, lens_inner])
+    object_id = particles.object_id.to(columns["object_id"].dtype)
+    interior_row = particles.interior_row
+    sources = {
+        "means": (interior_deformed["means"], keep_interior, lens.centre, None),
+        "covariances": (interior_deformed["covariances"], keep_interior, lens.covariance, None),
+        "opacities": (particles.interior_opacity, interior_row[kept],
+                      particles.interior_opacity, interior_row[inner_owners]),
+        "sh": (particles.interior_sh, interior_row[kept], particles.interior_sh,
+               interior_row[inner_owners]),
+        "view_rotations": (interior_deformed["view_rotations"], keep_interior,
+                           interior_deformed["view_rotations"], slot[inner_owners]),
+    }
+    out: dict[str, torch.Tensor] = {}
+    for name, (inner, inner_index, lens_inner_source, lens_inner_index) in sources.items():
+        if lens_inner_index is None:   # geometry of the lenses
+            lens_parts = [(lens_inner_source, lens_order)]
+        else:                          # appearance inherited from g_i
+            lens_parts = [(columns[name], own_rows), (lens_inner_source, lens_inner_index)]
+        out[name] = _gather_cat([(columns[name], keep_base), (inner, inner_index), *lens_parts])
+    out["particle"] = _gather_cat([(columns["particle"], keep_base), (interior, keep_interior),
+                                   (owners, particle_order)])
+    out["object_id"] = _gather_cat([(columns["object_id"], keep_base), (object_id, kept),
+                                    (object_id, owners.index_select(0, particle_order))])
+    count_lens = int(valid.numel())
+    out["exclusive"] = torch.cat([
+        columns["exclusive"].index_select(0, keep_base),
+        torch.zeros(keep_interior.numel(), dtype=torch.bool, device=device),
+        torch.full((count_lens,), exclusive, dtype=torch.bool, device=device)])
+    out["is_fpgo"] = torch.cat([columns["is_fpgo"].index_select(0, keep_base),
+                                torch.ones(keep_interior.numel() + count_lens, dtype=torch.bool,
+                                           device=device)])
+    return out, int(keep_interior.numel())

@@ -1,0 +1,176 @@
+"""Reading a simulation output folder (written by :mod:`fracture_gs.mpm.output`, SPEC §5.6).
+
+```python
+sim = Simulation.open("output/sims/two_spheres")     # SimulationError: one line naming the file
+sim.frames                                            # [0, 1, ..., 24]
+frame = sim.load_frame(12, device)                    # x, F_E, fractured, ... as tensors
+```
+Every problem with the folder raises :class:`SimulationError` with a one-line message that names
+the file or option at fault, so command-line tools can print it and exit with status 2.
+"""
+from __future__ import annotations
+
+import re
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fracture_gs.config.scene import SceneConfig, SceneError, parse_scene, read_yaml
+from fracture_gs.mpm.output import (FRAMES_DIR, PARTICLES_FILE, SCENE_FILE, frame_file_name)
+
+PARTICLE_ARRAYS = ("rest_x", "obj_id", "is_surface", "gaussian_index", "rest_volume")
+FRAME_ARRAYS = ("x", "F_E", "fractured")
+_FRAME_PATTERN = re.compile(r"^frame_(\d+)\.npz$")
+
+
+class SimulationError(ValueError):
+    """A simulation folder (or a request on it) that cannot be used; the message is one line
+    naming the file or option at fault."""
+
+
+@dataclass(frozen=True)
+class SimParticles:
+    """Constant per-particle data of a run (``particles.npz``), N rows in frame order."""
+
+    rest_x: np.ndarray          # (N,3) float32 world positions at frame 0
+    obj_id: np.ndarray          # (N,) int32
+    is_surface: np.ndarray      # (N,) bool
+    gaussian_index: np.ndarray  # (N,) int64, row in the object's point_cloud.ply or -1
+    rest_volume: np.ndarray     # (N,) float32
+
+    def __len__(self) -> int:
+        return int(self.rest_x.shape[0])
+
+
+@dataclass(frozen=True)
+class SimFrame:
+    """One frame of a run as tensors on one device."""
+
+    index: int
+    x: torch.Tensor          # (N,3) float32
+    F_E: torch.Tensor        # (N,3,3) float32 elastic deformation gradient
+    fractured: torch.Tensor  # (N,) bool, latched fracture flag
+
+    def to(self, device: torch.device) -> "SimFrame":
+        return SimFrame(self.index, self.x.to(device), self.F_E.to(device),
+                        self.fractured.to(device))
+
+
+def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """Arrays ``names`` of an ``.npz``; SimulationError naming the file when it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [name for name in names if name not in data.files]
+            if missing:
+                raise SimulationError(f"{path}: missing array '{missing[0]}'")
+            return {name: data[name] for name in names}
+    except FileNotFoundError:
+        raise SimulationError(f"{path}: file not found") from None
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        if isinstance(exc, SimulationError):
+            raise
+        raise SimulationError(f"{path}: not a readable .npz file ({type(exc).__name__})") from None
+
+
+class Simulation:
+    """An opened simulation folder: its resolved scene, constant particle data and frames."""
+
+    def __init__(self, root: Path, scene: SceneConfig, particles: SimParticles,
+                 frames: list[int]) -> None:
+        self.root = root
+        self.scene = scene
+        self.particles = particles
+        self.frames = frames
+
+    @classmethod
+    def open(cls, path: str | Path) -> "Simulation":
+        """Check and open a folder written by ``simulate.py``.
+
+        Raises SimulationError when the folder, ``scene.yaml`` (or a ``model`` folder it
+        names), ``particles.npz`` or every frame is missing, or the files disagree.
+        """
+        root = Path(path)
+        if not root.is_dir():
+            raise SimulationError(f"{root}: no such simulation folder")
+        scene_path = root / SCENE_FILE
+        if not scene_path.is_file():
+            raise SimulationError(f"{scene_path}: file not found (not a simulate.py output folder)")
+        try:
+            scene = parse_scene(read_yaml(scene_path), base_dir=root, source=scene_path)
+        except SceneError as exc:
+            message = str(exc) if str(scene_path) in str(exc) else f"{scene_path}: {exc}"
+            raise SimulationError(message) from None
+        arrays = _load_npz(root / PARTICLES_FILE, PARTICLE_ARRAYS)
+        particles = SimParticles(
+            rest_x=arrays["rest_x"].astype(np.float32), obj_id=arrays["obj_id"].astype(np.int32),
+            is_surface=arrays["is_surface"].astype(bool),
+            gaussian_index=arrays["gaussian_index"].astype(np.int64),
+            rest_volume=arrays["rest_volume"].astype(np.float32))
+        count = len(particles)
+        for name in PARTICLE_ARRAYS:
+            if arrays[name].shape[0] != count:
+                raise SimulationError(f"{root / PARTICLES_FILE}: '{name}' has "
+                                      f"{arrays[name].shape[0]} rows, rest_x has {count}")
+        if count and (particles.obj_id.min() < 0 or particles.obj_id.max() >= len(scene.objects)):
+            raise SimulationError(f"{root / PARTICLES_FILE}: obj_id outside 0..{len(scene.objects) - 1}"
+                                  f" (the scene has {len(scene.objects)} objects)")
+        frames_dir = root / FRAMES_DIR
+        frames = sorted(int(m.group(1)) for f in (frames_dir.iterdir() if frames_dir.is_dir() else [])
+                        if (m := _FRAME_PATTERN.match(f.name)))
+        if not frames:
+            raise SimulationError(f"{frames_dir}: no frame_*.npz files (the run wrote no frames)")
+        return cls(root, scene, particles, frames)
+
+    @property
+    def object_names(self) -> list[str]:
+        return [obj.name for obj in self.scene.objects]
+
+    def frame_path(self, index: int) -> Path:
+        return self.root / FRAMES_DIR / frame_file_name(index)
+
+    def select_frames(self, spec: str | None) -> list[int]:
+        """Frames named by ``spec``: None (all), ``a`` (one), ``a:b`` (a up to but not including
+        b, as in Python), ``a:`` or ``:b``. SimulationError when the range leaves the run or
+        a frame inside it is missing."""
+        if spec is None:
+            return list(self.frames)
+        first, last = self.frames[0], self.frames[-1]
+        run = f"the run has frames {first}..{last}"
+        match = re.fullmatch(r"\s*(\d*)\s*(:?)\s*(\d*)\s*", spec)
+        if match is None or (match.group(2) == "" and match.group(3) != "") or \
+                not (match.group(1) or match.group(3)):
+            raise SimulationError(f"--frames {spec}: expected a, a:b, a: or :b (frame numbers)")
+        start = int(match.group(1)) if match.group(1) else first
+        if match.group(2):
+            stop = int(match.group(3)) if match.group(3) else last + 1
+        else:
+            stop = start + 1
+        if stop <= start:
+            raise SimulationError(f"--frames {spec}: empty range")
+        if start < first or stop - 1 > last:
+            raise SimulationError(f"--frames {spec}: outside the run ({run})")
+        available = set(self.frames)
+        missing = [f for f in range(start, stop) if f not in available]
+        if missing:
+            raise SimulationError(f"--frames {spec}: {self.frame_path(missing[0])} is missing")
+        return list(range(start, stop))
+
+    def load_frame(self, index: int, device: torch.device | None = None) -> SimFrame:
+        """Frame ``index`` as tensors (SimulationError naming the file if it is unusable)."""
+        path = self.frame_path(index)
+        arrays = _load_npz(path, FRAME_ARRAYS)
+        count = len(self.particles)
+        shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,)}
+        for name, shape in shapes.items():
+            if arrays[name].shape != shape:
+                raise SimulationError(f"{path}: '{name}' has shape {arrays[name].shape}, expected "
+                                      f"{shape} ({count} particles in {PARTICLES_FILE})")
+        x, F_E = arrays["x"].astype(np.float32), arrays["F_E"].astype(np.float32)
+        if not (np.isfinite(x).all() and np.isfinite(F_E).all()):
+            raise SimulationError(f"{path}: positions or F_E contain NaN or Inf")
+        device = device if device is not None else torch.device("cpu")
+        return SimFrame(index, torch.from_numpy(x).to(device), torch.from_numpy(F_E).to(device),
+                        torch.from_numpy(arrays["fractured"].astype(bool)).to(device))
