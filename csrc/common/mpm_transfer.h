@@ -151,14 +151,19 @@ HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, con
 
 // G2P of particle q: gather and advection (g2p_gather), the material's return map on
 // F_trial, and the fracture flag. Returns true if the position had to be clamped.
-HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                                     const float* grid_velocity, const G2POutputs& out) {
-  float F[9];
-  const bool clamped = g2p_gather(q, in, geo, dt, grid_velocity, out, F);
+// The material part of G2P: return map of F_trial (overwritten), stress, fracture flag.
+HOST_DEVICE inline void g2p_material(long long q, const G2PInputs& in, const G2POutputs& out, float F[9]) {
   float alpha = in.alpha[q];
   float tau[9];
   constitutive_update(g2p_material_row(q, in), F, &alpha, tau);
   g2p_store_material(q, in, out, F, alpha, tau);
+}
+
+HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                     const float* grid_velocity, const G2POutputs& out) {
+  float F[9];
+  const bool clamped = g2p_gather(q, in, geo, dt, grid_velocity, out, F);
+  g2p_material(q, in, out, F);
   return clamped;
 }
 
