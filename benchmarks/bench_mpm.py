@@ -78,13 +78,14 @@ def main() -> None:
                         help="timed blocks of the compiled backend; the median block is reported")
     parser.add_argument("--reference-steps", type=int, default=2, help="timed steps of the torch reference")
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--skip-reference", action="store_true", help="time the compiled backend only")
     args = parser.parse_args()
     device = torch.device(args.device)
     results = []
     cost = []
     for n in args.particles:
-        runs = (("cpp", False, args.steps, args.repeats), ("cpp", True, args.steps, args.repeats),
-                ("reference", False, args.reference_steps, 1))
+        runs = (("cpp", False, args.steps, args.repeats), ("cpp", True, args.steps, args.repeats)) + (
+            () if args.skip_reference else (("reference", False, args.reference_steps, 1),))
         for backend, fragments, steps, repeats in runs:
             if backend == "cpp" and compiled_module() is None:
                 continue

@@ -26,6 +26,7 @@ import yaml
 
 from fracture_gs.cli import simulate as cli
 from fracture_gs.config import load_scene
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
 from fracture_gs.mpm.output import diagnostics_columns, load_frame, read_diagnostics_csv
 from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
 
@@ -136,7 +137,11 @@ class BallisticSolver:
         total["per_object"] = [summary(self.particles.obj_id == k)
                                for k in range(len(self.object_names))]
         total["fractured"] = int(self.state.fractured.sum())
+        total["fragments"] = count_fragments(self.fragment_ids(), self.particles.obj_id)
         return total
+
+    def fragment_ids(self) -> torch.Tensor:
+        return fragment_ids(self.state.x, self.particles.obj_id, link_radius(self.particles.rest_volume))
 
     def state_in_input_order(self) -> SimState:
         return self.state  # never reorders its particles
@@ -204,6 +209,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
                                         "is_surface", "rest_x", "gaussian_index"}
         n = particles["mass"].shape[0]
         assert particles["rest_x"].shape == (n, 3)
+        obj = particles["obj_id"]
     frames = frames_of(out)
     assert len(frames) == 5
     for frame in frames:
@@ -211,12 +217,15 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
         assert frame["v"].shape == (n, 3) and frame["F_E"].shape == (n, 3, 3)
         assert frame["alpha"].shape == (n,) and frame["fractured"].dtype == np.bool_
         assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
+        # issue 14: the connected piece of every particle; the two objects never share one
+        assert frame["fragment_id"].shape == (n,) and frame["fragment_id"].dtype == np.int32
+        assert not set(frame["fragment_id"][obj == 0]) & set(frame["fragment_id"][obj == 1])
     with open(out / "diagnostics.csv") as handle:
         header = next(csv.reader(handle))
     assert header == ["frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic",
                       "elastic", "gravitational", "total_energy", "fractured",
                       "left_px", "left_py", "left_pz", "left_kinetic",
-                      "right_px", "right_py", "right_pz", "right_kinetic"]
+                      "right_px", "right_py", "right_pz", "right_kinetic", "fragments"]
     table = read_diagnostics_csv(out / "diagnostics.csv")
     assert table["frame"].tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(table["time"], 0.01 * np.arange(5))
@@ -590,11 +599,11 @@ def _huge_grid_scene() -> dict[str, Any]:
 
 def test_grid_too_large_is_refused_before_allocating(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
-    """2 objects x 4100³ nodes x 11 float32 fields = 5.5 TiB: named, never allocated."""
+    """2 objects x 4100³ nodes x 13 float32 fields = 6.5 TiB: named, never allocated."""
     scene = write_scene(tmp_path / "huge.yaml", _huge_grid_scene())
     code, stdout, stderr = run_main(["--scene", str(scene), "--out", str(tmp_path / "out"),
                                      "--device", "cpu"], capsys)
-    line = assert_one_line_error(code, stderr, "error: domain.grid: 4096 needs 5.5 TiB of grid "
+    line = assert_one_line_error(code, stderr, "error: domain.grid: 4096 needs 6.5 TiB of grid "
                                  "memory (2 grids of about 4100³ nodes), more than the ")
     assert line.endswith("of free cpu memory; use a coarser grid")
     assert not (tmp_path / "out").exists()
@@ -607,11 +616,12 @@ def test_memory_check_names_the_grid_or_the_primitive() -> None:
     config = parse_scene(tiny_scene())
     grid_bytes, n_grids, nodes = grid_memory_bytes(config)
     # 16 cells + 1 node, padded to blocks of 4: 20³ nodes; mass + momentum + velocity + contact
-    # normal (gradient) + volume = 11 float32 per node and grid (contact fields: 2 objects)
+    # normal (gradient) + volume + position moment = 13 float32 per node and grid (contact
+    # fields: 2 objects)
     assert (n_grids, nodes) == (2, 20 ** 3)
-    assert grid_bytes == 2 * 20 ** 3 * 11 * 4
+    assert grid_bytes == 2 * 20 ** 3 * 13 * 4
     check_scene_memory(config, torch.device("cpu"), available=grid_bytes + 10 ** 6)
-    with pytest.raises(Exception, match=r"^domain\.grid: 16 needs 687\.5 KiB of grid memory"):
+    with pytest.raises(Exception, match=r"^domain\.grid: 16 needs 812\.5 KiB of grid memory"):
         check_scene_memory(config, torch.device("cpu"), available=grid_bytes - 1)
     dense = tiny_scene()
     dense["objects"][1]["primitive"]["particles_per_cell"] = 10 ** 6
