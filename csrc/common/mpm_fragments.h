@@ -109,44 +109,25 @@ HOST_DEVICE inline void p2g_node_add(const AxisWeights aw[3], int a, int b, int 
   moment[2] -= w * m * pz;
 }
 
+// Node velocities of particle q of grid g with fragments: at a split node the field of q's side.
+struct FragmentNodeVelocity {
+  const float* grid_velocity;  // all 2K grids
+  const FragmentView* frag;
+  int g;
+  long long q;
+  long long nodes;
+  HOST_DEVICE const float* operator()(long long node) const {
+    return grid_velocity + 3 * ((long long)fragment_field(*frag, g, q, node, nodes) * nodes + node);
+  }
+};
+
 // G2P gather of particle q when its stencil reaches a split node: as g2p_gather, but each node's
 // velocity comes from the field (A or B) the particle belongs to there.
 HOST_DEVICE inline bool g2p_gather_fragments(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
                                              const float* grid_velocity, const FragmentView& f,
                                              const G2POutputs& out, float F_trial[9]) {
-  const GridShape& s = geo.shape;
-  const long long nodes = s.nodes();
-  const float dx = geo.dx;
-  AxisWeights aw[3];
-  stencil_weights(in.x + 3 * q, geo, aw);
-  const int g = in.grid_id[q];
-  float vp[3] = {0.f, 0.f, 0.f};
-  float B[9] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
-  for (int a = 0; a < 3; ++a) {
-    const int ox = offset_x(aw[0].base + a, s);
-    const float px = ((float)a - aw[0].f) * dx;
-    for (int b = 0; b < 3; ++b) {
-      const int oxy = ox + offset_y(aw[1].base + b, s);
-      const float py = ((float)b - aw[1].f) * dx;
-      for (int c = 0; c < 3; ++c) {
-        const long long node = oxy + offset_z(aw[2].base + c, s);
-        const float w = aw[0].w[a] * aw[1].w[b] * aw[2].w[c];
-        const float pz = ((float)c - aw[2].f) * dx;
-        const float* vi = grid_velocity + 3 * ((long long)fragment_field(f, g, q, node, nodes) * nodes + node);
-        for (int d = 0; d < 3; ++d) {
-          const float wv = w * vi[d];
-          vp[d] += wv;
-          B[3 * d] += wv * px;
-          B[3 * d + 1] += wv * py;
-          B[3 * d + 2] += wv * pz;
-        }
-      }
-    }
-  }
-  const float apic_scale = 4.f * geo.inv_dx * geo.inv_dx;
-  float C[9];
-  for (int i = 0; i < 9; ++i) C[i] = apic_scale * B[i];
-  return g2p_advect(q, in, dt, vp, C, out, F_trial);
+  const FragmentNodeVelocity velocity{grid_velocity, &f, in.grid_id[q], q, geo.shape.nodes()};
+  return g2p_gather_nodes(q, in, geo, dt, velocity, out, F_trial);
 }
 
 // G2P of particle q with fragments (frag may be nullptr: none): the split-aware gather for

@@ -16,6 +16,13 @@ constexpr int kTileNodes = kTile * kTile * kTile;
 inline cudaStream_t as_stream(void* stream) { return static_cast<cudaStream_t>(stream); }
 inline unsigned blocks_for(long long n, int threads) { return (unsigned)((n + threads - 1) / threads); }
 
+// Thread t of a launch over the nodes of the (grid, block) keys: its node's index in the grid arrays.
+__device__ inline long long key_node(const int32_t* keys, long long t, const MPMGeometry& geo) {
+  const int n_blocks = geo.shape.blocks();
+  const int key = keys[t / kBlockNodes];
+  return (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
+}
+
 __global__ void reference_kernel(long long n, const float* x, const int32_t* grid_id, MPMGeometry geo, float mass_eps,
                                  const float* grid_mass, const float* grid_damage, float* damage_gradient,
                                  int64_t* reference) {
@@ -40,12 +47,9 @@ __global__ void split_nodes_kernel(const int32_t* touched, int n_touched, MPMGeo
                                    GridArrays grid, uint8_t* split_block) {
   const long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_touched * kBlockNodes) return;
-  const int n_blocks = geo.shape.blocks();
-  const int key = touched[t / kBlockNodes];
-  const long long idx =
-      (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
+  const long long idx = key_node(touched, t, geo);
   if (!key_is_split(frag.reference[idx], frag.split_bits)) return;
-  split_block[key] = 1;  // every writer stores the same value
+  split_block[touched[t / kBlockNodes]] = 1;  // every writer stores the same value
   grid.mass[idx] = 0.f;
   for (int d = 0; d < 3; ++d) {
     grid.momentum[3 * idx + d] = 0.f;
@@ -101,10 +105,7 @@ __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleA
 __global__ void clear_kernel(const int32_t* keys, int n_keys, MPMGeometry geo, GridArrays grid) {
   const long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_keys * kBlockNodes) return;
-  const int n_blocks = geo.shape.blocks();
-  const int key = keys[t / kBlockNodes];
-  const long long idx =
-      (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
+  const long long idx = key_node(keys, t, geo);
   grid.mass[idx] = 0.f;
   for (int d = 0; d < 3; ++d) {
     grid.momentum[3 * idx + d] = 0.f;

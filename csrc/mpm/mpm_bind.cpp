@@ -63,6 +63,13 @@ GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor&
   return g;
 }
 
+// The bins as the kernels read them; color_start must be a host tensor (it sizes the launches).
+BinsView bins_view(const std::vector<Tensor>& bins, const Tensor& color_start) {
+  return BinsView{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
+                  bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
+                  (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+}
+
 // Fragment view from (damage_gradient (N,3) float, reference (K*nodes) int64, split_particle (N) uint8).
 FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo, double split_gradient,
                            const Tensor& like) {
@@ -104,9 +111,7 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
   if (x.device().is_cpu()) {
     for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
     Tensor color_start = bins[4];
-    BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
-                  bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                  (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+    const BinsView view = bins_view(bins, color_start);
     fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, grid_mass.data_ptr<float>(),
                            grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
                            grid_reference.data_ptr<int64_t>());
@@ -154,9 +159,7 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
   GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   Tensor color_start = bins[4].to(torch::kCPU);
-  BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
-                bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+  const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
     fragment_split_nodes_cpu(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>());
     fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>());
@@ -253,9 +256,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
     grid.reference = grid_reference->data_ptr<int64_t>();
   }
   Tensor color_start = bins[4].to(torch::kCPU);
-  BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
-                bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+  const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
     p2g_cpu(view, p, geo, (float)dt, grid);
     return;

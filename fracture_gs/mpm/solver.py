@@ -323,3 +323,4 @@ class CollisionMPM:
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
         self.max_speed = float(self.state.v.norm(dim=1).max()) if n else 0.0
+        self._fragment_cache = None  # labels belong to the state they were computed from
