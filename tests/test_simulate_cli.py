@@ -26,6 +26,7 @@ import yaml
 
 from fracture_gs.cli import simulate as cli
 from fracture_gs.config import load_scene
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
 from fracture_gs.mpm.output import diagnostics_columns, load_frame, read_diagnostics_csv
 from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
 
@@ -136,7 +137,11 @@ class BallisticSolver:
         total["per_object"] = [summary(self.particles.obj_id == k)
                                for k in range(len(self.object_names))]
         total["fractured"] = int(self.state.fractured.sum())
+        total["fragments"] = count_fragments(self.fragment_ids(), self.particles.obj_id)
         return total
+
+    def fragment_ids(self) -> torch.Tensor:
+        return fragment_ids(self.state.x, self.particles.obj_id, link_radius(self.particles.rest_volume))
 
     def state_in_input_order(self) -> SimState:
         return self.state  # never reorders its particles
@@ -204,6 +209,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
                                         "is_surface", "rest_x", "gaussian_index"}
         n = particles["mass"].shape[0]
         assert particles["rest_x"].shape == (n, 3)
+        obj = particles["obj_id"]
     frames = frames_of(out)
     assert len(frames) == 5
     for frame in frames:
@@ -211,12 +217,15 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
         assert frame["v"].shape == (n, 3) and frame["F_E"].shape == (n, 3, 3)
         assert frame["alpha"].shape == (n,) and frame["fractured"].dtype == np.bool_
         assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
+        # issue 14: the connected piece of every particle; the two objects never share one
+        assert frame["fragment_id"].shape == (n,) and frame["fragment_id"].dtype == np.int32
+        assert not set(frame["fragment_id"][obj == 0]) & set(frame["fragment_id"][obj == 1])
     with open(out / "diagnostics.csv") as handle:
         header = next(csv.reader(handle))
     assert header == ["frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic",
                       "elastic", "gravitational", "total_energy", "fractured",
                       "left_px", "left_py", "left_pz", "left_kinetic",
-                      "right_px", "right_py", "right_pz", "right_kinetic"]
+                      "right_px", "right_py", "right_pz", "right_kinetic", "fragments"]
     table = read_diagnostics_csv(out / "diagnostics.csv")
     assert table["frame"].tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(table["time"], 0.01 * np.arange(5))

@@ -94,16 +94,18 @@ HOST_DEVICE inline bool g2p_advect(long long q, const G2PInputs& in, float dt, c
   return clamped;
 }
 
-// G2P gather of particle q: v and the APIC matrix C from its grid, the advected (and clamped)
-// position, and F_trial = (I + dt C) F_E for the return map. Writes x, v, C of `out`; returns
-// true if the position had to be clamped into the domain.
-HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                                   const float* grid_velocity, const G2POutputs& out, float F_trial[9]) {
+// G2P gather of particle q with the velocity of each stencil node given by node_velocity(node)
+// (node: index within one grid; returns a pointer to 3 floats): v and the APIC matrix C, the
+// advected (and clamped) position, and F_trial = (I + dt C) F_E for the return map. Writes x, v, C
+// of `out`; returns true if the position had to be clamped into the domain.
+template <class NodeVelocity>
+HOST_DEVICE inline bool g2p_gather_nodes(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                         const NodeVelocity& node_velocity, const G2POutputs& out,
+                                         float F_trial[9]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   AxisWeights aw[3];
   stencil_weights(in.x + 3 * q, geo, aw);
-  const float* velocity = grid_velocity + 3 * (long long)in.grid_id[q] * s.nodes();
   float vp[3] = {0.f, 0.f, 0.f};
   float B[9] = {0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f, 0.f};
   for (int a = 0; a < 3; ++a) {
@@ -116,7 +118,7 @@ HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGe
       for (int c = 0; c < 3; ++c) {
         const float w = wab * aw[2].w[c];
         const float pz = ((float)c - aw[2].f) * dx;
-        const float* vi = velocity + 3 * (ox + oy + offset_z(aw[2].base + c, s));
+        const float* vi = node_velocity((long long)(ox + oy + offset_z(aw[2].base + c, s)));
         for (int d = 0; d < 3; ++d) {
           const float wv = w * vi[d];
           vp[d] += wv;
@@ -131,6 +133,19 @@ HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGe
   float C[9];
   for (int i = 0; i < 9; ++i) C[i] = apic_scale * B[i];
   return g2p_advect(q, in, dt, vp, C, out, F_trial);
+}
+
+// Node velocities of one grid (3 floats per node).
+struct GridNodeVelocity {
+  const float* velocity;
+  HOST_DEVICE const float* operator()(long long node) const { return velocity + 3 * node; }
+};
+
+// G2P gather of particle q from its own grid (g2p_gather_nodes).
+HOST_DEVICE inline bool g2p_gather(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                   const float* grid_velocity, const G2POutputs& out, float F_trial[9]) {
+  const GridNodeVelocity velocity{grid_velocity + 3 * (long long)in.grid_id[q] * geo.shape.nodes()};
+  return g2p_gather_nodes(q, in, geo, dt, velocity, out, F_trial);
 }
 
 // Material row of particle q.
@@ -151,14 +166,19 @@ HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, con
 
 // G2P of particle q: gather and advection (g2p_gather), the material's return map on
 // F_trial, and the fracture flag. Returns true if the position had to be clamped.
-HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                                     const float* grid_velocity, const G2POutputs& out) {
-  float F[9];
-  const bool clamped = g2p_gather(q, in, geo, dt, grid_velocity, out, F);
+// The material part of G2P: return map of F_trial (overwritten), stress, fracture flag.
+HOST_DEVICE inline void g2p_material(long long q, const G2PInputs& in, const G2POutputs& out, float F[9]) {
   float alpha = in.alpha[q];
   float tau[9];
   constitutive_update(g2p_material_row(q, in), F, &alpha, tau);
   g2p_store_material(q, in, out, F, alpha, tau);
+}
+
+HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                                     const float* grid_velocity, const G2POutputs& out) {
+  float F[9];
+  const bool clamped = g2p_gather(q, in, geo, dt, grid_velocity, out, F);
+  g2p_material(q, in, out, F);
   return clamped;
 }
 

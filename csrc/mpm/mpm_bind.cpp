@@ -63,6 +63,141 @@ GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor&
   return g;
 }
 
+// The bins as the kernels read them; color_start must be a host tensor (it sizes the launches).
+BinsView bins_view(const std::vector<Tensor>& bins, const Tensor& color_start) {
+  return BinsView{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
+                  bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
+                  (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+}
+
+// Fragment view from (damage_gradient (N,3) float, reference (K*nodes) int64, split_particle (N) uint8).
+FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo, double split_gradient,
+                           const Tensor& like) {
+  TORCH_CHECK(f.size() == 3, "fragments must hold (damage_gradient, reference, split_particle)");
+  TORCH_CHECK(split_gradient > 0.0, "split_gradient must be > 0");
+  check_tensor(f[0], "damage_gradient", torch::kFloat32, like);
+  check_tensor(f[1], "reference", torch::kInt64, like);
+  check_tensor(f[2], "split_particle", torch::kUInt8, like);
+  TORCH_CHECK(f[0].numel() == 3 * f[2].numel(), "damage_gradient and split_particle disagree on N");
+  TORCH_CHECK(f[1].numel() >= (int64_t)geo.n_grids * geo.shape.nodes(), "reference is too small");
+  FragmentView v;
+  v.n_fields = geo.n_grids;
+  const float threshold = (float)(split_gradient * split_gradient);
+  std::memcpy(&v.split_bits, &threshold, sizeof(threshold));
+  v.damage_gradient = f[0].data_ptr<float>();
+  v.reference = f[1].data_ptr<int64_t>();
+  v.split_particle = f[2].data_ptr<uint8_t>();
+  return v;
+}
+
+// Damage gradient per particle and reference key per node (fragments, step 2). The bins and x
+// are those of P2G; grid_damage and grid_reference as P2G left them. Returns damage_gradient (N,3).
+Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& grid_id,
+                          const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                          int64_t n_grids, double mass_eps, const Tensor& grid_mass, const Tensor& grid_damage,
+                          Tensor grid_reference) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
+  check_tensor(x, "x", torch::kFloat32, x);
+  check_tensor(grid_id, "grid_id", torch::kInt32, x);
+  // The field tensors may hold 2K grids (fields A and B): only the first K are read here.
+  const int64_t k_nodes = (int64_t)geo.n_grids * geo.shape.nodes();
+  check_tensor(grid_damage, "grid_damage", torch::kFloat32, x);
+  check_tensor(grid_reference, "grid_reference", torch::kInt64, x);
+  check_tensor(grid_mass, "grid_mass", torch::kFloat32, x);
+  TORCH_CHECK(grid_damage.numel() >= k_nodes && grid_reference.numel() >= k_nodes && grid_mass.numel() >= k_nodes,
+              "fragment_reference: grid fields are smaller than the object grids");
+  Tensor damage_gradient = torch::zeros({x.size(0), 3}, x.options());
+  if (x.device().is_cpu()) {
+    for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
+    Tensor color_start = bins[4];
+    const BinsView view = bins_view(bins, color_start);
+    fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, grid_mass.data_ptr<float>(),
+                           grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
+                           grid_reference.data_ptr<int64_t>());
+    return damage_gradient;
+  }
+#ifdef FGS_WITH_CUDA
+  fragment_reference_cuda(x.size(0), x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), geo, (float)mass_eps,
+                          grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
+                          grid_reference.data_ptr<int64_t>(), current_cuda_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+  return damage_gradient;
+}
+
+// Fragments, step 3: fields A and B at the split nodes. The grid tensors hold 2K grids (A: 0..K-1,
+// B: K..2K-1; B zero on entry). Returns (split_particle (N) uint8, split_keys (S) int32: the
+// (grid, block) keys of the K grids that hold a split node, ascending).
+std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v,
+                                       const Tensor& C, const Tensor& stress, const Tensor& mass,
+                                       const Tensor& rest_volume, const Tensor& grid_id,
+                                       const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                                       int64_t n_grids, double dt, const Tensor& damage_gradient,
+                                       const Tensor& grid_reference, double split_gradient, Tensor grid_mass,
+                                       Tensor grid_momentum, Tensor grid_mass_gradient, Tensor grid_position_moment) {
+  TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  const MPMGeometry both = make_geometry(lower, dx, blocks, 2 * n_grids);
+  const int64_t n = x.size(0);
+  for (const Tensor* t : {&x, &v, &C, &stress, &mass, &rest_volume, &damage_gradient})
+    check_tensor(*t, "particle array", torch::kFloat32, x);
+  check_tensor(grid_id, "grid_id", torch::kInt32, x);
+  TORCH_CHECK(v.numel() == 3 * n && C.numel() == 9 * n && stress.numel() == 9 * n && mass.numel() == n &&
+                  rest_volume.numel() == n && grid_id.numel() == n && damage_gradient.numel() == 3 * n,
+              "fragment_partition: particle arrays have inconsistent sizes");
+  check_grid(grid_mass, "grid_mass", 1, both, x);
+  check_grid(grid_momentum, "grid_momentum", 3, both, x);
+  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, both, x);
+  check_grid(grid_position_moment, "grid_position_moment", 3, both, x);
+  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
+  Tensor split_particle = torch::zeros({n}, x.options().dtype(torch::kUInt8));
+  Tensor split_block = torch::zeros({(int64_t)geo.n_grids * geo.shape.blocks()}, x.options().dtype(torch::kUInt8));
+  const FragmentView frag = fragment_view({damage_gradient, grid_reference, split_particle}, geo, split_gradient, x);
+  ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
+                   mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
+  Tensor color_start = bins[4].to(torch::kCPU);
+  const BinsView view = bins_view(bins, color_start);
+  if (x.device().is_cpu()) {
+    fragment_split_nodes_cpu(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>());
+    fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>());
+  } else {
+#ifdef FGS_WITH_CUDA
+    fragment_split_nodes_cuda(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>(),
+                              current_cuda_stream());
+    fragment_p2g_cuda(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(), current_cuda_stream());
+#else
+    TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+  }
+  Tensor split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
+  return {split_particle, split_keys};
+}
+
+// Zeroes every field of the given (grid, block) keys of the 2K-grid tensors (field B after a substep).
+void fragment_clear(const Tensor& keys, const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
+                    int64_t n_grids, Tensor grid_mass, Tensor grid_momentum, Tensor grid_velocity,
+                    Tensor grid_mass_gradient, Tensor grid_position_moment) {
+  const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  check_tensor(keys, "keys", torch::kInt32, grid_mass);
+  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
+  check_grid(grid_momentum, "grid_momentum", 3, geo, grid_mass);
+  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
+  check_grid(grid_position_moment, "grid_position_moment", 3, geo, grid_mass);
+  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, grid_mass_gradient, grid_position_moment);
+  if (grid_mass.device().is_cpu()) {
+    fragment_clear_cpu(keys.data_ptr<int32_t>(), (int)keys.numel(), geo, grid);
+    return;
+  }
+#ifdef FGS_WITH_CUDA
+  fragment_clear_cuda(keys.data_ptr<int32_t>(), (int)keys.numel(), geo, grid, current_cuda_stream());
+#else
+  TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
+#endif
+}
 
 // Sorts particles into blocks (CPU). Returns (order, cell_start, cell_key, color_cells,
 // color_start, touched, contact_blocks) as int32 tensors.
@@ -83,7 +218,8 @@ std::vector<Tensor> bin_particles(const Tensor& x, const Tensor& grid_id, const 
 void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, const Tensor& C, const Tensor& stress,
          const Tensor& mass, const Tensor& rest_volume, const Tensor& grid_id, const std::vector<double>& lower,
          double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt, Tensor grid_mass,
-         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_position_moment) {
+         Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_position_moment,
+         std::optional<Tensor> fractured, std::optional<Tensor> grid_damage, std::optional<Tensor> grid_reference) {
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
@@ -102,13 +238,25 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
   if (grid_position_moment) check_grid(*grid_position_moment, "grid_position_moment", 3, geo, x);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
+  TORCH_CHECK(fractured.has_value() == grid_damage.has_value() && fractured.has_value() == grid_reference.has_value(),
+              "p2g: give fractured, grid_damage and grid_reference together (fragments) or none");
+  if (fractured) {
+    check_tensor(*fractured, "fractured", torch::kBool, x);
+    TORCH_CHECK(fractured->numel() == n, "p2g: fractured has the wrong size");
+    check_grid(*grid_damage, "grid_damage", 1, geo, x);
+    check_tensor(*grid_reference, "grid_reference", torch::kInt64, x);
+    TORCH_CHECK(grid_reference->numel() == (int64_t)geo.n_grids * geo.shape.nodes(), "grid_reference has the wrong size");
+  }
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
-                   mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>()};
+                   mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(),
+                   fractured ? reinterpret_cast<const uint8_t*>(fractured->data_ptr<bool>()) : nullptr};
   GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
+  if (fractured) {
+    grid.damage = grid_damage->data_ptr<float>();
+    grid.reference = grid_reference->data_ptr<int64_t>();
+  }
   Tensor color_start = bins[4].to(torch::kCPU);
-  BinsView view{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
-                bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+  const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
     p2g_cpu(view, p, geo, (float)dt, grid);
     return;
@@ -213,7 +361,8 @@ std::tuple<int64_t, int64_t, double> g2p(
     const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
     const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt,
     const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out, Tensor v_out,
-    Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out) {
+    Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out,
+    std::optional<std::vector<Tensor>> fragments, double split_gradient) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
   check_tensor(x, "x", torch::kFloat32, x);
@@ -225,7 +374,16 @@ std::tuple<int64_t, int64_t, double> g2p(
   check_tensor(material_table, "material_table", torch::kFloat32, x);
   TORCH_CHECK(material_table.dim() == 2 && material_table.size(1) == kMatFields, "material_table must be (M, ",
               kMatFields, ")");
-  check_grid(grid_velocity, "grid_velocity", 3, geo, x);
+  FragmentView frag{};
+  const FragmentView* frag_ptr = nullptr;
+  if (fragments) {  // (damage_gradient, reference, split_particle): the grids hold fields A and B
+    frag = fragment_view(*fragments, geo, split_gradient, x);
+    frag_ptr = &frag;
+    const MPMGeometry both = make_geometry(lower, dx, blocks, 2 * n_grids);
+    check_grid(grid_velocity, "grid_velocity", 3, both, x);
+  } else {
+    check_grid(grid_velocity, "grid_velocity", 3, geo, x);
+  }
   TORCH_CHECK(F_E.numel() == 9 * n && alpha.numel() == n && fractured.numel() == n && grid_id.numel() == n &&
                   material_id.numel() == n,
               "g2p: particle arrays have inconsistent sizes");
@@ -253,14 +411,14 @@ std::tuple<int64_t, int64_t, double> g2p(
                  alpha_out.data_ptr<float>(), stress_out.data_ptr<float>(),
                  reinterpret_cast<uint8_t*>(fractured_out.data_ptr<bool>())};
   if (x.device().is_cpu()) {
-    const G2PStats s = g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out);
+    const G2PStats s = g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out, frag_ptr);
     return {s.clamped, s.first_nonfinite, (double)s.max_speed};
   }
 #ifdef FGS_WITH_CUDA
   Tensor stats = torch::tensor({(int64_t)0, std::numeric_limits<int64_t>::max(), (int64_t)0},
                                torch::kInt64).to(x.device());
   g2p_cuda(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out,
-           reinterpret_cast<long long*>(stats.data_ptr<int64_t>()), current_cuda_stream());
+           reinterpret_cast<long long*>(stats.data_ptr<int64_t>()), current_cuda_stream(), frag_ptr);
   Tensor host = stats.cpu();
   const int64_t* h = host.data_ptr<int64_t>();
   const int32_t speed_bits = (int32_t)h[2];
@@ -282,6 +440,9 @@ void register_mpm(pybind11::module& m) {
   m.def("mpm_boundaries", &boundaries, "Domain walls and ground on touched blocks");
   m.def("mpm_collision", &collision, "Collision-MPM contact impulses between object grids");
   m.def("mpm_g2p", &g2p, "Grid-to-particle transfer, advection and the return map");
+  m.def("mpm_fragment_reference", &fragment_reference, "Fragments: damage gradients and node reference keys");
+  m.def("mpm_fragment_partition", &fragment_partition, "Fragments: fields A and B at the split nodes");
+  m.def("mpm_fragment_clear", &fragment_clear, "Fragments: zero the fields of the given grid blocks");
 }
 
 }  // namespace fgs

@@ -212,10 +212,11 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
 }
 
 // P2G accumulates each cell's particles into a dense window of the 2x2x2 blocks their stencils
-// can reach, one 8-float record per node: [mass, momentum xyz, position moment xyz, 0] (the
+// can reach, one 8-float record per node: [mass, momentum xyz, position moment xyz, m D] (the
 // position moment sum w m (x_p - x_i) has the same form as the APIC term A (x_i - x_p), so it
 // rides in the same multiply-adds). A node update is then three 8-wide multiply-adds; the window
-// (16 KB) stays in L1 and is added to the grid fields once per cell. Cells next to a contact
+// (16 KB) stays in L1 and is added to the grid fields once per cell. The last lane sums m D
+// (damage, csrc/common/mpm_fragments.h) for the fragment partition; it is zero without it. Cells next to a contact
 // block also fill a second window of 4-float records with the mass gradient.
 using Record = float __attribute__((vector_size(32)));  // GCC vector: AVX, or two SSE halves
 using Lane4 = float __attribute__((vector_size(16)));
@@ -260,7 +261,8 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
     // Per-particle record directions; a node's record is a combination of them with weights.
     // Per unit offset x_i - x_p: momentum A (x_i - x_p), position moment -m (x_i - x_p).
-    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], 0.f, 0.f, 0.f, 0.f};
+    const float damage = p.fractured ? m * particle_damage(p.fractured[q]) : 0.f;
+    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], 0.f, 0.f, 0.f, damage};
     const Record affine_x = {0.f, A[0], A[3], A[6], -m, 0.f, 0.f, 0.f};
     const Record affine_y = {0.f, A[1], A[4], A[7], 0.f, -m, 0.f, 0.f};
     const Record affine_z = {0.f, A[2], A[5], A[8], 0.f, 0.f, -m, 0.f};
@@ -297,7 +299,8 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
 // only there.
 void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRICT gradient_window,
                       const int block_ijk[3], const GridShape& s, const uint8_t* contact, float* FGS_RESTRICT mass,
-                      float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient, float* FGS_RESTRICT moment) {
+                      float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient, float* FGS_RESTRICT moment,
+                      float* FGS_RESTRICT damage) {
   for (int di = 0; di < 2; ++di)
     for (int dj = 0; dj < 2; ++dj)
       for (int dk = 0; dk < 2; ++dk) {
@@ -316,6 +319,7 @@ void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRI
               const long long idx = dst + lk;
               mass[idx] += r[0];
               for (int d = 0; d < 3; ++d) momentum[3 * idx + d] += r[1 + d];
+              if (damage) damage[idx] += r[7];
               if (with_contact && moment)
                 for (int d = 0; d < 3; ++d) moment[3 * idx + d] += r[4 + d];
               if (with_contact && gradient) {
@@ -343,6 +347,8 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
     std::memset(grid.momentum + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
     if (grid.mass_gradient) std::memset(grid.mass_gradient + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
     if (grid.position_moment) std::memset(grid.position_moment + 3 * first, 0, sizeof(float) * 3 * kBlockNodes);
+    if (grid.damage) std::memset(grid.damage + first, 0, sizeof(float) * kBlockNodes);
+    if (grid.reference) std::memset(grid.reference + first, 0, sizeof(int64_t) * kBlockNodes);
   }
   // Contact blocks (block ids touched by two grids): only there does P2G add the position moment
   // and the mass gradient, the contact pass's inputs; a cell computes the gradient only if its
@@ -381,7 +387,8 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
         p2g_flush_window(window.data(), gradient_window.data(), block_ijk, s, near_contact ? contact : nullptr,
                          grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
                          grid.mass_gradient ? grid.mass_gradient + 3 * grid_offset : nullptr,
-                         grid.position_moment ? grid.position_moment + 3 * grid_offset : nullptr);
+                         grid.position_moment ? grid.position_moment + 3 * grid_offset : nullptr,
+                         grid.damage ? grid.damage + grid_offset : nullptr);
       }
     }
   }
@@ -491,7 +498,7 @@ bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, fl
 }  // namespace
 
 G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                 const float* grid_velocity, G2POutputs out) {
+                 const float* grid_velocity, G2POutputs out, const FragmentView* frag) {
   long long clamped = 0, first_bad = n;
   float max_speed_sq = 0.f;
 #pragma omp parallel reduction(+ : clamped) reduction(min : first_bad) reduction(max : max_speed_sq)
@@ -507,7 +514,9 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
 #pragma omp for schedule(dynamic, 512) nowait
     for (long long q = 0; q < n; ++q) {
       float F_trial[9];
-      clamped += g2p_gather_cpu(q, in, geo, dt, grid_velocity, out, F_trial) ? 1 : 0;
+      const bool split = frag != nullptr && frag->split_particle[q] != 0;
+      clamped += (split ? g2p_gather_fragments(q, in, geo, dt, grid_velocity, *frag, out, F_trial)
+                        : g2p_gather_cpu(q, in, geo, dt, grid_velocity, out, F_trial)) ? 1 : 0;
       const float* xq = out.x + 3 * q;
       const float* vq = out.v + 3 * q;
       // x * 0 is NaN exactly when x is not finite; a tree of sums keeps the chain short.

@@ -27,6 +27,7 @@ struct StagedParticle {
   float dw[3][3];
   float f[3];
   float mass;
+  float damage;  // m D (fragments)
   float mv[3];
   float A[9];
 };
@@ -43,6 +44,8 @@ __global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long l
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] = 0.f;
   if (grid.position_moment)
     for (int d = 0; d < 3; ++d) grid.position_moment[3 * idx + d] = 0.f;
+  if (grid.damage) grid.damage[idx] = 0.f;
+  if (grid.reference) grid.reference[idx] = 0;
 }
 
 __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
@@ -56,7 +59,8 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
   const int t = threadIdx.x;
   const int node[3] = {origin[0] + t / (kTile * kTile), origin[1] + (t / kTile) % kTile, origin[2] + t % kTile};
-  float mass = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f}, moment[3] = {0.f, 0.f, 0.f};
+  float mass = 0.f, damage = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f},
+        moment[3] = {0.f, 0.f, 0.f};
   bool reached = false;
   const int first = bins.cell_start[cell], last = bins.cell_start[cell + 1];
   for (int chunk = first; chunk < last; chunk += kChunk) {
@@ -75,6 +79,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         }
       }
       sp.mass = p.mass[q];
+      sp.damage = p.fractured ? sp.mass * particle_damage(p.fractured[q]) : 0.f;
       for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
       apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
     }
@@ -89,6 +94,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         const float px = ((float)a - sp.f[0]) * geo.dx, py = ((float)b - sp.f[1]) * geo.dx,
                     pz = ((float)c - sp.f[2]) * geo.dx;
         mass += w * sp.mass;
+        damage += w * sp.damage;
         moment[0] -= w * sp.mass * px;  // sum w m (x_p - x_i)
         moment[1] -= w * sp.mass * py;
         moment[2] -= w * sp.mass * pz;
@@ -104,6 +110,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   if (t >= kTileNodes || !reached) return;
   const long long idx = (long long)g * s.nodes() + node_index(node[0], node[1], node[2], s);
   grid.mass[idx] += mass;
+  if (grid.damage) grid.damage[idx] += damage;
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] += momentum[d];
   if (grid.mass_gradient)
     for (int d = 0; d < 3; ++d) grid.mass_gradient[3 * idx + d] += gradient[d];
@@ -148,11 +155,12 @@ __global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, M
 
 // Integer atomics only: a count, a minimum index, and the maximum of a non-negative float through
 // its bit pattern (which orders like the value).
+// frag.n_fields == 0: no fragments.
 __global__ void g2p_kernel(long long n, G2PInputs in, MPMGeometry geo, float dt, const float* grid_velocity,
-                           G2POutputs out, long long* stats) {
+                           G2POutputs out, long long* stats, FragmentView frag) {
   long long q = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (q >= n) return;
-  if (g2p_particle(q, in, geo, dt, grid_velocity, out))
+  if (g2p_particle_fragments(q, in, geo, dt, grid_velocity, frag.n_fields > 0 ? &frag : nullptr, out))
     atomicAdd(reinterpret_cast<unsigned long long*>(stats), 1ull);
   if (!particle_is_finite(q, out)) {
     atomicMin(stats + 1, q);
@@ -198,9 +206,12 @@ void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeome
 }
 
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* grid_velocity,
-              G2POutputs out, long long* stats, void* stream) {
+              G2POutputs out, long long* stats, void* stream, const FragmentView* frag) {
   if (n == 0) return;
-  g2p_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(n, in, geo, dt, grid_velocity, out, stats);
+  FragmentView off{};
+  off.n_fields = 0;
+  g2p_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(n, in, geo, dt, grid_velocity, out, stats,
+                                                                           frag ? *frag : off);
 }
 
 }  // namespace fgs

@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "common/mpm_fragments.h"
 #include "common/mpm_transfer.h"
 
 namespace fgs {
@@ -45,6 +46,7 @@ struct ParticleArrays {  // inputs of P2G, N rows each
   const float* mass;
   const float* rest_volume;
   const int32_t* grid_id;
+  const uint8_t* fractured;  // latched fracture flags (damage for the fragment partition), or nullptr
 };
 
 struct GridArrays {  // n_grids * nodes rows each
@@ -53,6 +55,8 @@ struct GridArrays {  // n_grids * nodes rows each
   float* velocity;       // (.., 3)
   float* mass_gradient;  // (.., 3) or nullptr when no contact normals are needed (CPU P2G: contact blocks only)
   float* position_moment;  // (.., 3) sum w m (x_p - x_i), or nullptr (only for contact; CPU P2G: contact blocks only)
+  float* damage = nullptr;       // (K * nodes) sum w m D (fragments), or nullptr
+  int64_t* reference = nullptr;  // (K * nodes) fragment reference keys (zeroed by P2G), or nullptr
 };
 
 // Returns -1 on success or the index of a particle whose stencil leaves the grid.
@@ -67,8 +71,26 @@ void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& ge
 // Contact impulses at the nodes of the contact blocks (contact_node, csrc/common/mpm_math.h).
 void collision_cpu(const int32_t* contact_blocks, int n_contact, const MPMGeometry& geo, const ContactParams& params,
                    GridArrays grid);
+// frag: nullptr without fragments; else particles with split_particle set gather per-node fields.
 G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                 const float* grid_velocity, G2POutputs out);
+                 const float* grid_velocity, G2POutputs out, const FragmentView* frag = nullptr);
+
+// Fragments (csrc/common/mpm_fragments.h). geo.n_grids = K object grids; the grid arrays hold 2K.
+// Damage gradient of every particle and the reference key of every node its stencil reaches
+// (reference must be zero on entry: P2G clears it on touched blocks).
+void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
+                            const float* grid_mass, const float* grid_damage, float* damage_gradient,
+                            int64_t* reference);
+// Zeroes field A at the split nodes of the touched blocks; split_block[key] = 1 for (grid, block)
+// keys that hold one.
+void fragment_split_nodes_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
+                              const FragmentView& frag, GridArrays grid, uint8_t* split_block);
+// Sums fields A and B at the split nodes from their particles; split_particle[q] = 1 if q's
+// stencil reaches a split node (left untouched otherwise: zero it before).
+void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle);
+// Zeroes every field of the given (grid, block) keys (field B after the substep).
+void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 
 #ifdef FGS_WITH_CUDA
 // CUDA launchers: device pointers, stream is a cudaStream_t.
@@ -83,7 +105,16 @@ void collision_cuda(const int32_t* contact_blocks, int n_contact, const MPMGeome
 // stats: device int64[3] = {clamped, first_nonfinite, bits of max |v|^2}, initialised by the
 // caller to {0, INT64_MAX, 0}.
 void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
-              const float* grid_velocity, G2POutputs out, long long* stats, void* stream);
+              const float* grid_velocity, G2POutputs out, long long* stats, void* stream,
+              const FragmentView* frag = nullptr);
+void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
+                             float mass_eps, const float* grid_mass, const float* grid_damage, float* damage_gradient,
+                             int64_t* reference, void* stream);
+void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
+                               const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream);
+void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, void* stream);
+void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 #endif
 
 }  // namespace fgs

@@ -202,7 +202,8 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
     if not resume:
         output.start(config.to_dict(), built.particles)
         row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
-        output.write_frame(0, solver.state_in_input_order(), row, solver.state_dict())
+        output.write_frame(0, solver.state_in_input_order(), row, solver.state_dict(),
+                           fragment_id=solver.fragment_ids())
         return 0
     output.remove_temporaries()
     try:
@@ -218,7 +219,7 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
     output.write_scene(config.to_dict())
     if not output.frame_complete(checkpoint.frame):  # killed between checkpoint and frame
         output.write_frame(checkpoint.frame, solver.state_in_input_order(), checkpoint.rows[-1],
-                           solver.state_dict())
+                           solver.state_dict(), fragment_id=solver.fragment_ids())
     return checkpoint.frame
 
 
@@ -288,7 +289,8 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
             clamped += int(stats.clamped)
             row = diagnostics_row(frame, solver.state.time, stats.steps, stats.dt_min,
                                   solver.diagnostics())
-            output.write_frame(frame, solver.state_in_input_order(), row, solver.state_dict())
+            output.write_frame(frame, solver.state_in_input_order(), row, solver.state_dict(),
+                               fragment_id=solver.fragment_ids())
             done = frame
             bar.update(1)
             bar.set_postfix(substeps_s=f"{stats.steps / max(elapsed, 1e-9):.0f}",

@@ -50,6 +50,7 @@ DEFAULT_BETA = 0.5
 DEFAULT_XI = 1.0
 DEFAULT_M = 2.36
 DEFAULT_GROUND_FRICTION = 0.5
+DEFAULT_FRAGMENTS = False  # contact.fragments (crack opening inside objects, issue 14)
 
 
 class SceneError(ValueError):
@@ -82,6 +83,8 @@ class ContactConfig:
     mode: Literal["collision", "mls"] = "collision"
     strength: float = 1.0
     friction: float = 0.0
+    # Crack opening inside an object (issue 14); false: one grid field per object (the paper).
+    fragments: bool = DEFAULT_FRAGMENTS
 
 
 @dataclass(frozen=True)
@@ -183,7 +186,7 @@ class SceneConfig:
             "frame_dt": self.frame_dt,
             "gravity": list(self.gravity),
             "contact": {"mode": self.contact.mode, "strength": self.contact.strength,
-                        "friction": self.contact.friction},
+                        "friction": self.contact.friction, "fragments": self.contact.fragments},
             "cfl": self.cfl,
             "seed": self.seed,
             "boundaries": [_boundary_dict(b) for b in self.boundaries],
@@ -361,6 +364,16 @@ def _check_number(value: Any, keypath: str, *, gt: float | None = None,
     return float(value)
 
 
+def _boolean(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING) -> bool:
+    keypath = _join(path, key)
+    if key not in data:
+        return _default(keypath, default)
+    value = data[key]
+    if not isinstance(value, bool):
+        raise SceneError(keypath, f"expected true or false, got {_type_name(value)}")
+    return value
+
+
 def _integer(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
              ge: int | None = None) -> int:
     keypath = _join(path, key)
@@ -475,11 +488,12 @@ def _parse_domain(value: Any) -> DomainConfig:
 
 def _parse_contact(value: Any) -> ContactConfig:
     data = _mapping(value, "contact")
-    _check_keys(data, "contact", ("mode", "strength", "friction"))
+    _check_keys(data, "contact", ("mode", "strength", "friction", "fragments"))
     return ContactConfig(mode=_choice(data, "mode", "contact", CONTACT_MODES, "collision"),
                          # s > 2 leaves (1 - s) v_n with |1 - s| > 1: the impulse would add energy.
                          strength=_number(data, "strength", "contact", 1.0, ge=0.0, le=2.0),
-                         friction=_number(data, "friction", "contact", 0.0, ge=0.0))
+                         friction=_number(data, "friction", "contact", 0.0, ge=0.0),
+                         fragments=_boolean(data, "fragments", "contact", DEFAULT_FRAGMENTS))
 
 
 def _parse_boundaries(items: list[Any], domain: DomainConfig) -> tuple[BoundaryConfig, ...]:

@@ -82,16 +82,36 @@ class GridFields:
     # grids) only, and the compiled CPU P2G sums them there only (zero elsewhere).
     mass_gradient: torch.Tensor | None    # Σ m_p ∇w: contact normals
     position_moment: torch.Tensor | None  # Σ w m_p (x_p − x_i): mass centre seen from the node, × mass
+    # With fragments only (issue 14; the grids are then 2K: fields A of the K object grids, then
+    # their fields B). Only the first K grids are used.
+    damage: torch.Tensor | None = None     # Σ w m_p D_p (divided by mass: the node's damage)
+    reference: torch.Tensor | None = None  # int64 reference key (|∇D_p|² bits << 32 | p), 0 = none
 
     @staticmethod
-    def zeros(geometry: GridGeometry, device: torch.device, with_contact: bool) -> "GridFields":
+    def zeros(geometry: GridGeometry, device: torch.device, with_contact: bool,
+              with_fragments: bool = False) -> "GridFields":
         shape = (geometry.n_grids, geometry.nodes_per_grid)
         return GridFields(
             mass=torch.zeros(shape, device=device),
             momentum=torch.zeros(shape + (3,), device=device),
             velocity=torch.zeros(shape + (3,), device=device),
-            mass_gradient=torch.zeros(shape + (3,), device=device) if with_contact else None,
-            position_moment=torch.zeros(shape + (3,), device=device) if with_contact else None)
+            mass_gradient=torch.zeros(shape + (3,), device=device) if with_contact or with_fragments else None,
+            position_moment=torch.zeros(shape + (3,), device=device) if with_contact or with_fragments else None,
+            damage=torch.zeros(shape, device=device) if with_fragments else None,
+            reference=torch.zeros(shape, device=device, dtype=torch.int64) if with_fragments else None)
+
+
+@dataclass
+class FragmentFields:
+    """What G2P needs to read each split node's field (fragments, issue 14)."""
+
+    damage_gradient: torch.Tensor  # (N, 3) ∇D_p
+    reference: torch.Tensor        # (2K, nodes) int64 reference keys (first K grids)
+    split_particle: torch.Tensor   # (N,) uint8: the stencil reaches a split node
+    split_gradient: float          # |∇D| (1/length) at which a node splits
+
+    def as_list(self) -> list[torch.Tensor]:
+        return [self.damage_gradient, self.reference, self.split_particle]
 
 
 @dataclass

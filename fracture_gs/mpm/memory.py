@@ -36,12 +36,14 @@ def format_bytes(count: float) -> str:
 
 
 def grid_memory_bytes(config: SceneConfig) -> tuple[int, int, int]:
-    """(bytes, grids, nodes per grid) of the solver's grid fields for ``config``."""
+    """(bytes, grids, nodes per grid) of the solver's grid fields for ``config`` (with fragments,
+    grids counts the fields: two per object grid)."""
     collision = config.contact.mode == "collision"
     n_grids = len(config.objects) if collision else 1
-    geometry = GridGeometry.from_domain(solver_domain(config), n_grids)
+    fragments = config.contact.fragments  # a second field per grid (issue 14), as the solver allocates
+    geometry = GridGeometry.from_domain(solver_domain(config), 2 * n_grids if fragments else n_grids)
     fields = GridFields.zeros(geometry, torch.device("meta"),
-                              with_contact=collision and n_grids >= 2)
+                              with_contact=collision and n_grids >= 2, with_fragments=fragments)
     total = sum(t.numel() * t.element_size() for t in vars(fields).values()
                 if isinstance(t, torch.Tensor))
     return total, n_grids, geometry.nodes_per_grid

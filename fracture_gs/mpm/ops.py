@@ -8,7 +8,7 @@ import torch
 
 from fracture_gs._backend import compiled_module, use_compiled
 from fracture_gs.mpm import reference
-from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
+from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 
 WALL_CONDITIONS = reference.WALL_CONDITIONS
 
@@ -26,19 +26,22 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 
 def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
-        dt: float, grid: GridFields, backend: str = "auto") -> None:
+        dt: float, grid: GridFields, backend: str = "auto", fractured: torch.Tensor | None = None) -> None:
     """Particle-to-grid transfer into ``grid`` (mass, momentum; mass gradient and position moment for
     contact).
 
     The compiled CPU kernel sums mass gradient and position moment on contact blocks only (the
-    contact pass reads nothing else); the torch reference and CUDA fill them everywhere.
+    contact pass reads nothing else); the torch reference and CUDA fill them everywhere. With
+    ``fractured`` (fragments), it also sums Σ w m D into ``grid.damage`` and clears
+    ``grid.reference`` on the touched blocks.
     """
+    damage_args = (fractured, grid.damage, grid.reference) if fractured is not None else (None, None, None)
     if use_compiled(x.device, backend):
         compiled_module().mpm_p2g(bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id,
                                   *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient,
-                                  grid.position_moment)
+                                  grid.position_moment, *damage_args)
     else:
-        reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid)
+        reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid, fractured)
 
 
 def grid_update(bins: ParticleBins, geometry: GridGeometry, dt: float, gravity: tuple[float, float, float],
@@ -74,22 +77,63 @@ def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, frict
         reference.collision(grid, strength, friction, mass_eps, max_gap)
 
 
+def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
+                       mass_eps: float, grid: GridFields, backend: str = "auto") -> torch.Tensor:
+    """Fragments, step 2: every particle's damage gradient ∇D_p = Σ D_i ∇w_ip (returned, (N, 3)) and
+    every node's reference key (``grid.reference``: the largest |∇D_p| reaching it). ``geometry``
+    names the K object grids; P2G must have run with ``fractured``."""
+    if use_compiled(x.device, backend):
+        return compiled_module().mpm_fragment_reference(bins.as_list(), x, grid_id, *geometry.args(), mass_eps,
+                                                        grid.mass, grid.damage, grid.reference)
+    return reference.fragment_reference(x, grid_id, geometry, mass_eps, grid)
+
+
+def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
+                       mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
+                       dt: float, damage_gradient: torch.Tensor, split_gradient: float, grid: GridFields,
+                       backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+    """Fragments, step 3: at every split node (reference |∇D| >= ``split_gradient``, 1/length) the
+    object's field A and its field B (grid K + g) are summed again from the particles of each side.
+    Returns (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys holding a split node)."""
+    if use_compiled(x.device, backend):
+        split_particle, split_keys = compiled_module().mpm_fragment_partition(
+            bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id, *geometry.args(), dt, damage_gradient,
+            grid.reference, split_gradient, grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment)
+        return split_particle, split_keys
+    return reference.fragment_partition(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, damage_gradient,
+                                        split_gradient, grid)
+
+
+def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields, backend: str = "auto") -> None:
+    """Zero every field of the given (grid, block) keys (``geometry`` of all 2K grids)."""
+    if use_compiled(grid.mass.device, backend):
+        compiled_module().mpm_fragment_clear(keys, *geometry.args(), grid.mass, grid.momentum, grid.velocity,
+                                             grid.mass_gradient, grid.position_moment)
+    else:
+        reference.fragment_clear(keys, geometry, grid)
+
+
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,
         material_id: torch.Tensor, material_table: torch.Tensor, grid: GridFields, geometry: GridGeometry,
-        dt: float, backend: str = "auto"):
+        dt: float, backend: str = "auto", fragments: FragmentFields | None = None):
     """Grid-to-particle transfer, advection and return map.
 
-    Returns (x, v, C, F_E, alpha, stress, fractured, G2PStats) with new tensors.
+    ``geometry`` names the object grids (K); with ``fragments`` the grid holds 2K fields and each
+    split node is read from the field of the particle's side. Returns (x, v, C, F_E, alpha, stress,
+    fractured, G2PStats) with new tensors.
     """
     clamp_lower, clamp_upper = geometry.clamp_bounds()
+    # Without fragments G2P reads the K object grids only (the tensors may hold fields B as well).
+    velocity = grid.velocity if fragments is not None else grid.velocity[:geometry.n_grids]
     if use_compiled(x.device, backend):
         n = x.shape[0]
         out = [torch.empty_like(x), torch.empty_like(x), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(F_E), torch.empty_like(alpha), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(fractured)]
         clamped, first_bad, max_speed = compiled_module().mpm_g2p(
-            x, F_E, alpha, fractured, grid_id, material_id, material_table, grid.velocity, *geometry.args(), dt,
-            clamp_lower, clamp_upper, *out)
+            x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity, *geometry.args(), dt,
+            clamp_lower, clamp_upper, *out, fragments.as_list() if fragments is not None else None,
+            fragments.split_gradient if fragments is not None else 1.0)
         return (*out, G2PStats(int(clamped), int(first_bad), float(max_speed)))
-    return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, grid.velocity,
-                         geometry, dt, clamp_lower, clamp_upper)
+    return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity,
+                         geometry, dt, clamp_lower, clamp_upper, fragments)

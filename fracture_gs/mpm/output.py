@@ -45,6 +45,7 @@ FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
 OBJECT_COLUMNS = ("px", "py", "pz", "kinetic")
+TAIL_COLUMNS = ("fragments",)
 
 
 def frame_file_name(frame: int) -> str:
@@ -52,9 +53,11 @@ def frame_file_name(frame: int) -> str:
 
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
-    """CSV header: the SPEC §5.6 columns, then ``<name>_px, _py, _pz, _kinetic`` per object."""
+    """CSV header: the SPEC §5.6 columns, then ``<name>_px, _py, _pz, _kinetic`` per object, then
+    ``fragments`` (pieces with >= 1 % of their object's particles; last, so old readers keep
+    their column positions)."""
     return list(BASE_COLUMNS) + [f"{name}_{col}" for name in object_names
-                                 for col in OBJECT_COLUMNS]
+                                 for col in OBJECT_COLUMNS] + list(TAIL_COLUMNS)
 
 
 def _scalar(value: Any) -> float:
@@ -82,17 +85,22 @@ def diagnostics_row(frame: int, time: float, steps: int, dt_min: float,
                         kinetic + elastic + gravitational, int(_scalar(diagnostics["fractured"]))]
     for obj in diagnostics["per_object"]:
         row += [*_vector3(obj["momentum"]), _scalar(obj["kinetic"])]
+    row.append(int(_scalar(diagnostics["fragments"])))
     return row
 
 
-def frame_arrays(state: SimState) -> dict[str, np.ndarray]:
-    """The per-frame arrays of SPEC §5.6 from a solver state (float32, fractured bool)."""
+def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+    """The per-frame arrays of SPEC §5.6 from a solver state (float32, fractured bool), plus
+    ``fragment_id`` (int32 connected piece of every particle) when given."""
     def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
         return t.detach().cpu().numpy().astype(dtype, copy=False)
 
-    return {"x": array(state.x, np.float32), "v": array(state.v, np.float32),
-            "F_E": array(state.F_E, np.float32), "alpha": array(state.alpha, np.float32),
-            "fractured": array(state.fractured, np.bool_)}
+    arrays = {"x": array(state.x, np.float32), "v": array(state.v, np.float32),
+              "F_E": array(state.F_E, np.float32), "alpha": array(state.alpha, np.float32),
+              "fractured": array(state.fractured, np.bool_)}
+    if fragment_id is not None:
+        arrays["fragment_id"] = array(fragment_id, np.int32)
+    return arrays
 
 
 def particle_arrays(particles: ParticleSet) -> dict[str, np.ndarray]:
@@ -263,7 +271,7 @@ class SimulationOutput:
         write_text_atomic(self.scene_path, text)
 
     def write_frame(self, frame: int, state: SimState, row: list[float],
-                    solver_state: Mapping[str, Any]) -> None:
+                    solver_state: Mapping[str, Any], fragment_id: torch.Tensor | None = None) -> None:
         """Commit one frame: checkpoint first, then the frame file, then the CSV."""
         if len(row) != len(self.columns):
             raise ValueError(f"diagnostics row has {len(row)} values, expected "
@@ -274,7 +282,7 @@ class SimulationOutput:
         payload.update(frame=np.int64(frame), rows=np.asarray(self.rows, dtype=np.float64),
                        columns=np.asarray(self.columns, dtype=np.str_))
         save_npz_atomic(self.checkpoint_path, payload)
-        save_npz_atomic(self.frame_path(frame), frame_arrays(state))
+        save_npz_atomic(self.frame_path(frame), frame_arrays(state, fragment_id))
         self.write_csv()
 
     def write_csv(self) -> None:

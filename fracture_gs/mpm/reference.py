@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import torch
 
-from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins, node_coords, node_index
+from fracture_gs.mpm.grid import (FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins, node_coords,
+                                  node_index)
 from fracture_gs.mpm.materials import COLUMN, constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
@@ -90,8 +91,9 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 
 def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
         rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
-        grid: GridFields) -> None:
-    """Scatter mass, APIC momentum + stress force and mass gradients onto each particle's grid."""
+        grid: GridFields, fractured: torch.Tensor | None = None) -> None:
+    """Scatter mass, APIC momentum + stress force and mass gradients onto each particle's grid
+    (with ``fractured``: also Σ w m D into ``grid.damage``, and ``grid.reference`` cleared)."""
     index, weight, gradient, dpos = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
     affine = mass[:, None, None] * C - (4.0 * dt / geometry.dx ** 2) * rest_volume[:, None, None] * stress
@@ -108,6 +110,90 @@ def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         grid.position_moment.zero_()
         moment = -(weight * mass[:, None])[..., None] * dpos   # w m (x_p − x_i)
         grid.position_moment.view(-1, 3).index_add_(0, index.flatten(), moment.reshape(-1, 3))
+    if fractured is not None:
+        assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
+        grid.damage.zero_()
+        grid.reference.zero_()
+        damage = mass * fractured.to(mass.dtype)                 # m D, D = the fracture flag
+        grid.damage.view(-1).index_add_(0, index.flatten(), (weight * damage[:, None]).flatten())
+
+
+def _norm_sq_bits(g: torch.Tensor) -> torch.Tensor:
+    """Bits of |g|² (float32, summed x + y + z as the kernels do) as int64."""
+    norm_sq = (g[:, 0] * g[:, 0] + g[:, 1] * g[:, 1]) + g[:, 2] * g[:, 2]
+    return norm_sq.contiguous().view(torch.int32).to(torch.int64)
+
+
+def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, mass_eps: float,
+                       grid: GridFields) -> torch.Tensor:
+    """Damage gradients ∇D_p = Σ_i D_i ∇w_ip with D_i = damage_i / mass_i (returned, (N, 3)), and the
+    reference key of every node: the maximum over the particles reaching it of
+    (bits(|∇D_p|²) << 32) | p (0 where none has a non-zero gradient). ``geometry``: K object grids."""
+    assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
+    index, _, gradient, _ = _stencil(x, geometry)
+    index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
+    node_mass = grid.mass.reshape(-1)[index]
+    node_damage = torch.where(node_mass > mass_eps, grid.damage.reshape(-1)[index] / torch.where(
+        node_mass > mass_eps, node_mass, torch.ones_like(node_mass)), torch.zeros_like(node_mass))
+    damage_gradient = (node_damage[..., None] * gradient).sum(1)
+    particle = torch.arange(x.shape[0], device=x.device, dtype=torch.int64)
+    key = (_norm_sq_bits(damage_gradient) << 32) | particle
+    key = torch.where((damage_gradient != 0).any(1), key, torch.zeros_like(key))
+    grid.reference.view(-1).scatter_reduce_(0, index.flatten(), key[:, None].expand(-1, 27).flatten(), "amax")
+    return damage_gradient
+
+
+def _fragment_fields(index: torch.Tensor, grid_id: torch.Tensor, damage_gradient: torch.Tensor,
+                     reference_keys: torch.Tensor, split_gradient: float, n_fields: int, nodes: int):
+    """Per (particle, stencil node): is the node split, and the grid (0..2K-1) the particle uses there."""
+    key = reference_keys.reshape(-1)[index]                             # (N,27)
+    threshold_bits = int(torch.tensor([split_gradient ** 2], dtype=torch.float32).view(torch.int32))
+    split = (key > 0) & ((key >> 32) >= threshold_bits)
+    ref = key & 0xFFFFFFFF
+    side = ((damage_gradient[:, None, :] * damage_gradient[ref]).sum(-1) < 0) & split
+    field = grid_id.long()[:, None] + n_fields * side.long()
+    return split, field
+
+
+def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
+                       rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
+                       damage_gradient: torch.Tensor, split_gradient: float,
+                       grid: GridFields) -> tuple[torch.Tensor, torch.Tensor]:
+    """At split nodes (reference |∇D| >= split_gradient), fields A (grid g) and B (grid K + g) are
+    summed again from their own particles: p is on side B where ∇D_p · ∇D_ref < 0. Returns
+    (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys of the K grids holding a
+    split node, ascending). ``geometry``: K object grids; ``grid``: 2K fields, B zero on entry."""
+    assert grid.reference is not None and grid.mass_gradient is not None and grid.position_moment is not None
+    K, nodes = geometry.n_grids, geometry.nodes_per_grid
+    node, weight, gradient, dpos = _stencil(x, geometry)
+    split, field = _fragment_fields(node + grid_id.long()[:, None] * nodes, grid_id, damage_gradient,
+                                    grid.reference, split_gradient, K, nodes)
+    split_nodes = torch.nonzero(key_split := _split_nodes(grid.reference[:K], split_gradient)).flatten()
+    for tensor in (grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment):
+        tensor.view(nodes * tensor.shape[0], -1)[split_nodes] = 0.0
+    target = (field * nodes + node)[split]
+    affine = mass[:, None, None] * C - (4.0 * dt / geometry.dx ** 2) * rest_volume[:, None, None] * stress
+    momentum = weight[..., None] * (mass[:, None, None] * v[:, None, :] + torch.einsum("nij,nkj->nki", affine, dpos))
+    grid.mass.view(-1).index_add_(0, target, (weight * mass[:, None])[split])
+    grid.momentum.view(-1, 3).index_add_(0, target, momentum[split])
+    grid.mass_gradient.view(-1, 3).index_add_(0, target, (gradient * mass[:, None, None])[split])
+    grid.position_moment.view(-1, 3).index_add_(0, target, (-(weight * mass[:, None])[..., None] * dpos)[split])
+    block = key_split.view(K, geometry.n_blocks, BLOCK ** 3).any(-1).flatten()
+    return split.any(1).to(torch.uint8), torch.nonzero(block).flatten().to(torch.int32)
+
+
+def _split_nodes(reference_keys: torch.Tensor, split_gradient: float) -> torch.Tensor:
+    """(…) bool: nodes whose reference key names a gradient |∇D| >= split_gradient."""
+    threshold_bits = int(torch.tensor([split_gradient ** 2], dtype=torch.float32).view(torch.int32))
+    return ((reference_keys > 0) & ((reference_keys >> 32) >= threshold_bits)).flatten()
+
+
+def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields) -> None:
+    """Zero every field of the given (grid, block) keys."""
+    nodes = (keys.long()[:, None] // geometry.n_blocks) * geometry.nodes_per_grid + \
+        (keys.long()[:, None] % geometry.n_blocks) * BLOCK ** 3 + torch.arange(BLOCK ** 3, device=keys.device)
+    for tensor in (grid.mass, grid.momentum, grid.velocity, grid.mass_gradient, grid.position_moment):
+        tensor.view(geometry.nodes_per_grid * tensor.shape[0], -1)[nodes.flatten()] = 0.0
 
 
 def grid_update(grid: GridFields, dt: float, gravity: torch.Tensor, mass_eps: float) -> None:
@@ -193,13 +279,20 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor,
         grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor,
         grid_velocity: torch.Tensor, geometry: GridGeometry, dt: float,
-        clamp_lower: list[float], clamp_upper: list[float]):
-    """Gather velocity and APIC affine field, advect, update F and run the return map.
+        clamp_lower: list[float], clamp_upper: list[float], fragments: FragmentFields | None = None):
+    """Gather velocity and APIC affine field, advect, update F and run the return map. With
+    ``fragments``, each split node's velocity comes from the field of the particle's side there.
 
     Returns (x, v, C, F_E, alpha, stress, fractured, G2PStats).
     """
     index, weight, _, dpos = _stencil(x, geometry)
-    index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
+    if fragments is None:
+        index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
+    else:
+        nodes = geometry.nodes_per_grid
+        _, field = _fragment_fields(index + grid_id.long()[:, None] * nodes, grid_id, fragments.damage_gradient,
+                                    fragments.reference, fragments.split_gradient, geometry.n_grids, nodes)
+        index = index + field * nodes
     node_v = grid_velocity.reshape(-1, 3)[index]                     # (N,27,3)
     v = (weight[..., None] * node_v).sum(1)
     C = (4.0 / geometry.dx ** 2) * torch.einsum("nk,nki,nkj->nij", weight, node_v, dpos)

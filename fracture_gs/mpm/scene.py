@@ -323,6 +323,7 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                       domain=domain,
                       contact=ContactSettings(mode=config.contact.mode,
                                               strength=config.contact.strength,
-                                              friction=config.contact.friction),
+                                              friction=config.contact.friction,
+                                              fragments=config.contact.fragments),
                       boundaries=solver_boundaries(config), gravity=config.gravity,
                       cfl=config.cfl)

@@ -1,13 +1,14 @@
 """Collision-MPM solver: MLS-MPM with per-object grids and momentum-conserving contact.
 
 One substep (SPEC §5.2–5.5):
-    bins → P2G (per object grid) → grid update (+gravity) → contact pass → boundaries → G2P
-    (+ return map, fracture flag)
+    bins → P2G (per object grid) → [fragments: damage gradients, split nodes, fields A/B] →
+    grid update (+gravity) → contact pass → boundaries → G2P (+ return map, fracture flag)
 The state is only replaced once the new one is finite and plausible, so a blow-up never
 corrupts what has been written so far.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Sequence
 
@@ -15,7 +16,8 @@ import numpy as np
 import torch
 
 from fracture_gs.mpm import ops
-from fracture_gs.mpm.grid import G2PStats, GridFields, GridGeometry, ParticleBins
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
+from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.materials import COLUMN, MaterialTable, elastic_energy
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
@@ -72,7 +74,17 @@ class CollisionMPM:
         self.geometry = GridGeometry.from_domain(domain, self.n_grids)
         self.grid_id = self._grid_ids(self.particles)
         self.use_contact = collision_mode and self.n_grids >= 2
-        self.grid = GridFields.zeros(self.geometry, self.device, with_contact=self.use_contact)
+        # Fragments (issue 14): each grid g gets a second field, grid n_grids + g, for the other
+        # side of a crack; the field kernels then run on all 2 n_grids grids.
+        self.fragments = bool(self.contact.fragments)
+        self.field_geometry = (dataclasses.replace(self.geometry, n_grids=2 * self.n_grids) if self.fragments
+                               else self.geometry)
+        self.split_gradient = self.contact.split_gradient / self.geometry.dx  # a gradient, 1/length
+        self.grid = GridFields.zeros(self.field_geometry, self.device, with_contact=self.use_contact,
+                                     with_fragments=self.fragments)
+        self.last_split_particles = 0  # particles that read a split node in the latest substep
+        self.fragment_radius = link_radius(self.particles.rest_volume)
+        self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
         self.state = self._initial_state(table)
@@ -123,15 +135,25 @@ class CollisionMPM:
             bins = ops.bin_particles(s.x, self.grid_id, geo, backend)
         except RuntimeError as exc:
             raise SimulationBlowUp(f"t={s.time:.6g}s: {exc}") from None
-        ops.p2g(bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, g, backend)
-        ops.grid_update(bins, geo, dt, self.gravity, self.mass_eps, g, backend)
-        if self.use_contact:
-            ops.collision(bins, geo, self.contact.strength, self.contact.friction, self.mass_eps,
+        fields = self.field_geometry
+        partition = self.fragments and bool(s.fractured.any())  # nothing to split before any damage
+        ops.p2g(bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, fields, dt, g, backend,
+                fractured=s.fractured if partition else None)
+        field_bins, fragments = bins, None
+        if partition:
+            field_bins, fragments = self._partition(bins, dt)
+        ops.grid_update(field_bins, fields, dt, self.gravity, self.mass_eps, g, backend)
+        if self.use_contact or fragments is not None:
+            ops.collision(field_bins, fields, self.contact.strength, self.contact.friction, self.mass_eps,
                           self.max_contact_gap, g, backend)
-        ops.boundaries(bins, geo, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps,
-                       g, backend)
+        ops.boundaries(field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction,
+                       self.mass_eps, g, backend)
         x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
-            s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend)
+            s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend,
+            fragments=fragments)
+        if fragments is not None:  # fields B are zero again for the next substep
+            ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
+        self.last_split_particles = int(fragments.split_particle.sum()) if fragments is not None else 0
         self._check(stats, v, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
@@ -141,6 +163,25 @@ class CollisionMPM:
         if self.reorder_every and self.state.step % self.reorder_every == 0:
             self.reorder()
         return stats.clamped
+
+    def _partition(self, bins: ParticleBins, dt: float) -> tuple[ParticleBins, FragmentFields | None]:
+        """Damage-gradient partitioning of the object grids (csrc/common/mpm_fragments.h): the
+        reference of every node, fields A and B at the split nodes. Returns the bins the field
+        passes use (touched: plus the fields B of split blocks; contact: plus the split blocks) and
+        what G2P needs, or (bins, None) where no node is split."""
+        p, s, g, geo = self.particles, self.state, self.grid, self.geometry
+        damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, g, self.backend)
+        split_particle, split_keys = ops.fragment_partition(
+            bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, damage_gradient,
+            self.split_gradient, g, self.backend)
+        if len(split_keys) == 0:
+            return bins, None
+        field_b = split_keys + self.n_grids * geo.n_blocks
+        contact_blocks = torch.unique(torch.cat([bins.contact_blocks, split_keys % geo.n_blocks]))
+        field_bins = dataclasses.replace(bins, touched=torch.cat([bins.touched, field_b]).contiguous(),
+                                         contact_blocks=contact_blocks.to(torch.int32).contiguous())
+        return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
+                                          self.split_gradient)
 
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
@@ -163,6 +204,15 @@ class CollisionMPM:
         where = torch.empty_like(self.input_index)  # where[j]: current row of input particle j
         where[self.input_index] = torch.arange(len(where), device=where.device)
         return self.state.take(where)
+
+    def fragment_ids(self) -> torch.Tensor:
+        """(N,) int64 fragment label of every particle, rows in the constructor's order (connected
+        pieces of each object, :mod:`fracture_gs.mpm.fragments`); cached per substep."""
+        if self._fragment_cache is None or self._fragment_cache[0] != self.state.step:
+            labels = fragment_ids(self.state_in_input_order().x, self.input_particles.obj_id, self.fragment_radius,
+                                  backend=self.backend)
+            self._fragment_cache = (self.state.step, labels)
+        return self._fragment_cache[1]
 
     def _check(self, stats: G2PStats, v: torch.Tensor, dt: float) -> None:
         """Refuse a substep whose result is non-finite or moves a particle more than one cell
@@ -222,6 +272,7 @@ class CollisionMPM:
             "gravitational": float(gravitational.sum()),
             "total_energy": float(kinetic.sum() + elastic.sum() + gravitational.sum()),
             "fractured": int(s.fractured.sum()),
+            "fragments": count_fragments(self.fragment_ids(), self.input_particles.obj_id),
             "per_object": [{"name": self.object_names[k], "momentum": mom_obj[k], "kinetic": float(kin_obj[k]),
                             "elastic": float(ela_obj[k]), "gravitational": float(grav_obj[k])}
                            for k in range(self.n_objects)],
@@ -272,3 +323,4 @@ class CollisionMPM:
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
         self.max_speed = float(self.state.v.norm(dim=1).max()) if n else 0.0
+        self._fragment_cache = None  # labels belong to the state they were computed from

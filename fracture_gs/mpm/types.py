@@ -7,8 +7,13 @@ from typing import Literal
 
 import torch
 
+from fracture_gs.config.scene import DEFAULT_FRAGMENTS
+
 BLOCK = 4  # grid block edge in nodes; grids are padded to a multiple of it
 CONTACT_GAP_CELLS = 0.9  # default ContactSettings.max_gap (see docs/design_mpm.md, contact detection)
+# Default ContactSettings.split_gradient: a node is split into two crack sides where the largest
+# particle damage gradient reaching it is at least this, in 1/cells (docs/design_mpm.md, fragments).
+SPLIT_GRADIENT_CELLS = 0.25
 
 
 class SimulationBlowUp(RuntimeError):
@@ -51,6 +56,11 @@ class ContactSettings:
     # one-layer sheets: their particle spacing). math.inf: every node where both bodies have mass
     # (SPEC §5.4 as written, which acts across a gap; kept to measure that).
     max_gap: float = CONTACT_GAP_CELLS
+    # Crack opening inside an object (issue 14): each object grid is split into two fields along
+    # the damage gradient, which meet through the same contact impulse. False: one field per
+    # object (the paper's behaviour, kept for the ablation).
+    fragments: bool = DEFAULT_FRAGMENTS
+    split_gradient: float = SPLIT_GRADIENT_CELLS  # in 1/cells (|grad D| dx at which a node splits)
 
     def __post_init__(self) -> None:
         if self.mode not in ("collision", "mls"):
@@ -62,6 +72,8 @@ class ContactSettings:
             raise ValueError(f"contact friction must be a finite number >= 0, got {self.friction}")
         if not float(self.max_gap) > 0.0:
             raise ValueError(f"contact max_gap must be > 0 (in cells), got {self.max_gap}")
+        if not 0.0 < float(self.split_gradient) < math.inf:
+            raise ValueError(f"contact split_gradient must be a finite number > 0 (1/cells), got {self.split_gradient}")
 
 
 @dataclass

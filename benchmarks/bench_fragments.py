@@ -1,0 +1,120 @@
+"""Acceptance runs of issue 14 (crack opening inside objects), printed as JSON.
+
+    python benchmarks/bench_fragments.py [--duration 0.3] [--grid 64] [--only block_weak_6 ...]
+
+1. Block drops (0.2 m cube, 8 particles per cell, on the ground): the issue's weak block
+   (E = 1e4, ρ = 100, α0 = −0.01) at 6 and 12 m/s and the tests' setting (E = 1e5, ρ = 1000,
+   β = 0.3, 3.5 m/s), each with ``fragments`` true and false; the weak block with α0 = −5 and an
+   elastic block, with fragments. Reported: fractured share, the pieces (connected components
+   linking particles closer than 1.5 x their spacing) with >= 2 % of the particles and their
+   sizes, the largest pieces, the energy peak relative to the start.
+2. Momentum: two NACC spheres colliding without gravity or walls, fragments on.
+3. A pre-cracked bar (α0 = 0.5 on the middle slab) pulled apart at ±1 m/s: the gap between the
+   halves, fragments true and false.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+import torch
+
+from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
+from fracture_gs.mpm.fragments import fragment_sizes
+from scipy.spatial import cKDTree
+
+PIECE_SHARE = 0.02  # acceptance 1: pieces of >= 2 % of the particles
+
+BLOCKS = {  # name: (speed, E, density, alpha0 (None: elastic), beta, fragments settings)
+    "block_weak_6": (6.0, 1e4, 100.0, -0.01, 0.5, (True, False)),
+    "block_weak_12": (12.0, 1e4, 100.0, -0.01, 0.5, (True, False)),
+    "block_test_3.5": (3.5, 1e5, 1000.0, -0.01, 0.3, (True, False)),
+    "block_strong_6": (6.0, 1e4, 100.0, -5.0, 0.5, (True,)),
+    "block_elastic_6": (6.0, 1e4, 100.0, None, 0.5, (True,)),
+}
+
+
+def run(solver, duration: float, samples: int = 30) -> dict:
+    """Advance ``duration`` in ``samples`` pieces; energy peak, wall time, split particle-steps."""
+    start_energy = solver.diagnostics()["total_energy"]
+    peak, split, steps = start_energy, 0, 0
+    tick = time.perf_counter()
+    for _ in range(samples):
+        end = solver.state.time + duration / samples
+        while end - solver.state.time > 1e-12:
+            solver.step(min(solver.stable_dt(), end - solver.state.time))
+            split += solver.last_split_particles
+            steps += 1
+        peak = max(peak, solver.diagnostics()["total_energy"])
+    return {"seconds": round(time.perf_counter() - tick, 1), "steps": steps,
+            "energy_peak_over_start": round(peak / start_energy, 5),
+            "split_particle_steps": split}
+
+
+def block_result(name: str, fragments: bool, grid: int, duration: float) -> dict:
+    speed, E, density, alpha0, beta, _ = BLOCKS[name]
+    solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=grid, fragments=fragments)
+    out = run(solver, duration)
+    sizes = fragment_sizes(solver.fragment_ids())
+    n = len(solver.particles)
+    pieces = [s for s in sizes if s >= PIECE_SHARE * n]
+    out.update(scene=name, fragments=fragments, particles=n, speed=speed, E=E, density=density, alpha0=alpha0,
+               fractured=round(float(solver.state.fractured.float().mean()), 4),
+               pieces_2pct=len(pieces), piece_sizes_2pct=pieces, largest_pieces=sizes[:8],
+               components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]))
+    return out
+
+
+def momentum_result(duration: float) -> dict:
+    solver = colliding_spheres(grid=32, fragments=True)
+    p0 = solver.diagnostics()["momentum"]
+    out = run(solver, duration)
+    drift = float(np.linalg.norm(solver.diagnostics()["momentum"] - p0) / np.linalg.norm(p0))
+    out.update(scene="two_nacc_spheres_no_gravity", fragments=True, relative_momentum_drift=drift,
+               fractured=round(float(solver.state.fractured.float().mean()), 4))
+    return out
+
+
+def bar_result(fragments: bool, grid: int, duration: float) -> dict:
+    solver, half = precracked_bar(grid=grid, fragments=fragments)
+    out = run(solver, duration)
+    x = solver.state_in_input_order().x.numpy()
+    gap = float(cKDTree(x[half.numpy() > 0]).query(x[half.numpy() < 0])[0].min())
+    out.update(scene="precracked_bar", fragments=fragments, gap_dx=round(gap / solver.geometry.dx, 3),
+               particles=len(solver.particles))
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=0.15, help="simulated seconds of each block drop")
+    parser.add_argument("--grid", type=int, default=64)
+    parser.add_argument("--only", nargs="*", default=None,
+                        help="scene names to run (block names, 'momentum', 'bar'); default all")
+    args = parser.parse_args()
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    wanted = set(args.only) if args.only else set(BLOCKS) | {"momentum", "bar"}
+    results = []
+
+    def record(result: dict) -> None:  # one line per finished run, so a long sweep shows progress
+        results.append(result)
+        print(json.dumps(result), file=sys.stderr, flush=True)
+
+    for name, (*_, settings) in BLOCKS.items():
+        if name in wanted:
+            for fragments in settings:
+                record(block_result(name, fragments, args.grid, args.duration))
+    if "bar" in wanted:
+        for fragments in (True, False):
+            record(bar_result(fragments, args.grid, 0.1))
+    if "momentum" in wanted:
+        record(momentum_result(0.2))
+    print(json.dumps({"benchmark": "fragments_acceptance", "grid": args.grid, "block_duration_s": args.duration,
+                      "results": results}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

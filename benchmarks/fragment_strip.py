@@ -1,0 +1,80 @@
+"""Frame strip of a simulation with its particles coloured by fragment (issue 14 pictures).
+
+    python benchmarks/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
+        --out docs/fragments_two_spheres.png [--title "two spheres"] [--view 20 -60]
+
+Reads ``frames/frame_NNNNN.npz`` of a ``simulate.py`` folder (which carry ``fragment_id``) and
+draws each chosen frame as a 3-D scatter: every fragment with >= 1 % of the particles gets its
+own colour, smaller pieces are grey. Prints one JSON line with the pieces per frame.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from fracture_gs.mpm.output import atomic_write, frame_file_name, load_frame  # noqa: E402
+
+MIN_SHARE = 0.01
+
+
+def fragment_colours(labels: np.ndarray) -> tuple[np.ndarray, int]:
+    """RGBA per particle: a tab20 colour per fragment with >= 1 % of the particles (largest first),
+    grey for the rest; and the number of such fragments."""
+    sizes = np.bincount(labels)
+    big = np.flatnonzero(sizes >= MIN_SHARE * labels.size)
+    big = big[np.argsort(-sizes[big], kind="stable")]
+    palette = plt.get_cmap("tab20")(np.arange(20))
+    colours = np.tile(np.array([0.6, 0.6, 0.6, 0.35]), (labels.size, 1))
+    for rank, label in enumerate(big):
+        colours[labels == label] = palette[rank % 20]
+    return colours, len(big)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sim", required=True, type=Path)
+    parser.add_argument("--frames", type=int, nargs="+", required=True)
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--title", default=None)
+    parser.add_argument("--view", type=float, nargs=2, default=(20.0, -60.0), help="elevation, azimuth (degrees)")
+    parser.add_argument("--max-points", type=int, default=40_000, help="subsample larger frames for drawing")
+    args = parser.parse_args()
+    frames = [load_frame(args.sim / "frames" / frame_file_name(f)) for f in args.frames]
+    if any("fragment_id" not in frame for frame in frames):
+        raise SystemExit(f"{args.sim}: frames have no fragment_id (simulated before issue 14?)")
+    everything = np.concatenate([frame["x"] for frame in frames])
+    lower, upper = everything.min(0), everything.max(0)
+    centre, half = (lower + upper) / 2, (upper - lower).max() / 2 * 1.05
+    figure = plt.figure(figsize=(3.2 * len(frames), 3.4))
+    pieces = []
+    for column, (number, frame) in enumerate(zip(args.frames, frames)):
+        axes = figure.add_subplot(1, len(frames), column + 1, projection="3d")
+        colours, count = fragment_colours(frame["fragment_id"].astype(np.int64))
+        pieces.append(count)
+        pick = np.arange(frame["x"].shape[0])
+        if pick.size > args.max_points:
+            pick = np.random.default_rng(0).choice(pick, args.max_points, replace=False)
+        x = frame["x"][pick]
+        axes.scatter(x[:, 0], x[:, 1], x[:, 2], c=colours[pick], s=1.0, depthshade=False, linewidths=0)
+        for axis, setter in enumerate((axes.set_xlim, axes.set_ylim, axes.set_zlim)):
+            setter(centre[axis] - half, centre[axis] + half)
+        axes.view_init(*args.view)
+        axes.set_axis_off()
+        axes.set_title(f"frame {number}: {count} pieces", fontsize=9)
+    if args.title:
+        figure.suptitle(args.title, fontsize=10)
+    figure.tight_layout()
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(args.out, lambda handle: figure.savefig(handle, format="png", dpi=110))
+    print(json.dumps({"sim": str(args.sim), "frames": args.frames, "pieces_1pct": pieces, "out": str(args.out)}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,152 @@
+// CUDA kernels of the damage-gradient partitioning (csrc/common/mpm_fragments.h); the math is the
+// CPU kernels' (csrc/mpm/fragments_cpu.cpp). Deterministic: the reference key is a 64-bit integer
+// maximum (order-free), and fields A and B are summed per node, one thread per tile node walking
+// its cell's particles in their sorted order, colour by colour (as P2G).
+#include <cuda_runtime.h>
+
+#include "mpm/mpm_kernels.h"
+
+namespace fgs {
+namespace {
+
+constexpr int kThreads = 256;
+constexpr int kTile = kBlock + 2;  // nodes per tile edge a cell's stencils cover
+constexpr int kTileNodes = kTile * kTile * kTile;
+
+inline cudaStream_t as_stream(void* stream) { return static_cast<cudaStream_t>(stream); }
+inline unsigned blocks_for(long long n, int threads) { return (unsigned)((n + threads - 1) / threads); }
+
+// Thread t of a launch over the nodes of the (grid, block) keys: its node's index in the grid arrays.
+__device__ inline long long key_node(const int32_t* keys, long long t, const MPMGeometry& geo) {
+  const int n_blocks = geo.shape.blocks();
+  const int key = keys[t / kBlockNodes];
+  return (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
+}
+
+__global__ void reference_kernel(long long n, const float* x, const int32_t* grid_id, MPMGeometry geo, float mass_eps,
+                                 const float* grid_mass, const float* grid_damage, float* damage_gradient,
+                                 int64_t* reference) {
+  const long long q = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (q >= n) return;
+  const int g = grid_id[q];
+  float* gq = damage_gradient + 3 * q;
+  particle_damage_gradient(x + 3 * q, g, geo, grid_mass, grid_damage, mass_eps, gq);
+  if (gq[0] == 0.f && gq[1] == 0.f && gq[2] == 0.f) return;
+  const int64_t key = damage_key(gq, q);
+  AxisWeights aw[3];
+  stencil_weights(x + 3 * q, geo, aw);
+  unsigned long long* keys = reinterpret_cast<unsigned long long*>(reference + (long long)g * geo.shape.nodes());
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b)
+      for (int c = 0; c < 3; ++c)
+        atomicMax(keys + node_index(aw[0].base + a, aw[1].base + b, aw[2].base + c, geo.shape),
+                  (unsigned long long)key);
+}
+
+__global__ void split_nodes_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, FragmentView frag,
+                                   GridArrays grid, uint8_t* split_block) {
+  const long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_touched * kBlockNodes) return;
+  const long long idx = key_node(touched, t, geo);
+  if (!key_is_split(frag.reference[idx], frag.split_bits)) return;
+  split_block[touched[t / kBlockNodes]] = 1;  // every writer stores the same value
+  grid.mass[idx] = 0.f;
+  for (int d = 0; d < 3; ++d) {
+    grid.momentum[3 * idx + d] = 0.f;
+    grid.mass_gradient[3 * idx + d] = 0.f;
+    grid.position_moment[3 * idx + d] = 0.f;
+  }
+}
+
+// One thread block per cell of the colour, one thread per node of the cell's 6x6x6 tile: a split
+// node sums the cell's particles into the field of their side (A or B).
+__global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
+                                       FragmentView frag, GridArrays grid, uint8_t* split_particle) {
+  const GridShape s = geo.shape;
+  const long long nodes = s.nodes();
+  const int n_blocks = s.blocks();
+  const int cell = bins.color_cells[color_begin + blockIdx.x];
+  const int g = bins.cell_key[cell] / n_blocks, block = bins.cell_key[cell] % n_blocks;
+  const int t = threadIdx.x;
+  if (t >= kTileNodes) return;
+  const int node_ijk[3] = {(block / (s.by * s.bz)) * kBlock + t / (kTile * kTile),
+                           ((block / s.bz) % s.by) * kBlock + (t / kTile) % kTile, (block % s.bz) * kBlock + t % kTile};
+  if (node_ijk[0] >= s.bx * kBlock || node_ijk[1] >= s.by * kBlock || node_ijk[2] >= s.bz * kBlock) return;
+  const long long node = node_index(node_ijk[0], node_ijk[1], node_ijk[2], s);
+  const int64_t key = frag.reference[(long long)g * nodes + node];
+  if (!key_is_split(key, frag.split_bits)) return;
+  const long long ref = key_particle(key);
+  float mass[2] = {0.f, 0.f}, momentum[2][3] = {}, gradient[2][3] = {}, moment[2][3] = {};
+  for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
+    const int q = bins.order[it];
+    AxisWeights aw[3];
+    stencil_weights(p.x + 3 * (long long)q, geo, aw);
+    const int a = node_ijk[0] - aw[0].base, b = node_ijk[1] - aw[1].base, c = node_ijk[2] - aw[2].base;
+    if (a < 0 || a > 2 || b < 0 || b > 2 || c < 0 || c > 2) continue;
+    split_particle[q] = 1;  // every writer stores the same value
+    const int side = fragment_side(frag.damage_gradient, q, ref);
+    const float m = p.mass[q];
+    const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
+    float A[9];
+    apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
+    p2g_node_add(aw, a, b, c, m, mv, A, geo.dx, &mass[side], momentum[side], gradient[side], moment[side]);
+  }
+  for (int side = 0; side < 2; ++side) {
+    const long long idx = (long long)(g + side * frag.n_fields) * nodes + node;
+    grid.mass[idx] += mass[side];
+    for (int d = 0; d < 3; ++d) {
+      grid.momentum[3 * idx + d] += momentum[side][d];
+      grid.mass_gradient[3 * idx + d] += gradient[side][d];
+      grid.position_moment[3 * idx + d] += moment[side][d];
+    }
+  }
+}
+
+__global__ void clear_kernel(const int32_t* keys, int n_keys, MPMGeometry geo, GridArrays grid) {
+  const long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
+  if (t >= (long long)n_keys * kBlockNodes) return;
+  const long long idx = key_node(keys, t, geo);
+  grid.mass[idx] = 0.f;
+  for (int d = 0; d < 3; ++d) {
+    grid.momentum[3 * idx + d] = 0.f;
+    grid.velocity[3 * idx + d] = 0.f;
+    grid.mass_gradient[3 * idx + d] = 0.f;
+    grid.position_moment[3 * idx + d] = 0.f;
+  }
+}
+
+}  // namespace
+
+void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
+                             float mass_eps, const float* grid_mass, const float* grid_damage, float* damage_gradient,
+                             int64_t* reference, void* stream) {
+  if (n == 0) return;
+  reference_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(
+      n, x, grid_id, geo, mass_eps, grid_mass, grid_damage, damage_gradient, reference);
+}
+
+void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
+                               const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream) {
+  if (n_touched == 0) return;
+  split_nodes_kernel<<<blocks_for((long long)n_touched * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      touched, n_touched, geo, frag, grid, split_block);
+}
+
+void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, void* stream) {
+  static_assert(kTileNodes <= kThreads, "one thread per tile node");
+  for (int color = 0; color < 8; ++color) {
+    const int begin = bins.color_start[color], count = bins.color_start[color + 1] - begin;
+    if (count > 0)
+      partition_color_kernel<<<count, kThreads, 0, as_stream(stream)>>>(bins, begin, p, geo, dt, frag, grid,
+                                                                         split_particle);
+  }
+}
+
+void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream) {
+  if (n_keys == 0) return;
+  clear_kernel<<<blocks_for((long long)n_keys * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      keys, n_keys, geo, grid);
+}
+
+}  // namespace fgs

@@ -1,0 +1,80 @@
+"""Lattice scenes of the fragment acceptance (issue 14), shared by tests and benchmarks.
+
+* :func:`block_drop` — a NACC (or elastic) cube dropped onto the ground;
+* :func:`precracked_bar` — a bar whose middle slab of particles is fractured from the start
+  (α0 above the fracture threshold), its halves pulled apart;
+* :func:`colliding_spheres` — two NACC spheres colliding without gravity or walls.
+
+Sizes are parameters so that the tests run a small version and ``benchmarks/bench_fragments.py``
+the full one.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.mpm.ordering import spatial_order
+from fracture_gs.mpm.solver import CollisionMPM
+from fracture_gs.mpm.types import ContactSettings, Domain, GroundBoundary
+
+GROUND_HEIGHT = 0.1
+
+
+def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, beta: float = 0.5,
+               grid: int = 64, size: float = 0.2, fragments: bool = True, ground_friction: float = 0.3,
+               backend: str = "auto") -> CollisionMPM:
+    """A cube of edge ``size`` (8 particles per cell) falling at ``speed`` onto the ground (its lowest
+    particles half a spacing above it), under gravity. ``alpha0=None``: an elastic block."""
+    domain = Domain((0, 0, 0), (1, 1, 1), grid)
+    spacing = domain.dx / 2
+    centre = (0.5, 0.5, GROUND_HEIGHT + size / 2 + spacing / 2)
+    block = lattice_box(centre, (size, size, size), spacing)
+    material = (ElasticMaterial(E=E, nu=0.3, density=density) if alpha0 is None else
+                NACCMaterial(E=E, nu=0.3, density=density, alpha0=alpha0, beta=beta, xi=1.0, M=2.36))
+    particles = particle_set([LatticeBody(block, (0.0, 0.0, -speed), 0, spacing)], [material.density])
+    particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
+    return CollisionMPM(particles, [material], domain, contact=ContactSettings(fragments=fragments),
+                        boundaries=[GroundBoundary(height=GROUND_HEIGHT, friction=ground_friction)],
+                        gravity=(0.0, 0.0, -9.8), backend=backend)
+
+
+def precracked_bar(*, grid: int = 64, length: float = 0.4, width: float = 0.1, speed: float = 1.0,
+                   fragments: bool = True, backend: str = "auto") -> tuple[CollisionMPM, torch.Tensor]:
+    """A bar along x whose middle slab (one particle layer) starts fractured (α0 = 0.5 > 0, the
+    threshold); the rest is strong NACC (α0 = −5). Halves move apart at ±speed, no gravity, no
+    walls. Returns the solver and each particle's half (−1 left, +1 right, 0 the slab), in the
+    solver's initial particle order."""
+    domain = Domain((0, 0, 0), (1, 1, 1), grid)
+    spacing = domain.dx / 2
+    centre = 0.5 + spacing / 2  # a lattice plane of particles lies exactly on x = centre
+    bar = lattice_box((centre, 0.5, 0.5), (length, width, width), spacing)
+    offset = bar[:, 0] - centre
+    half = torch.where(offset.abs() < 0.25 * spacing, 0, torch.where(offset < 0, -1, 1)).to(torch.int32)
+    strong = NACCMaterial(E=1e5, nu=0.3, density=1e3, alpha0=-5.0, beta=0.3, xi=1.0, M=2.36)
+    cracked = NACCMaterial(E=1e5, nu=0.3, density=1e3, alpha0=0.5, beta=0.3, xi=1.0, M=2.36)
+    particles = particle_set([LatticeBody(bar, (0.0, 0.0, 0.0), 0, spacing)], [strong.density])
+    velocity = torch.zeros_like(particles.v)
+    velocity[:, 0] = speed * half.float()
+    particles = dataclasses.replace(particles, v=velocity.contiguous(),
+                                    material_id=(half == 0).to(torch.int32).contiguous())
+    solver = CollisionMPM(particles, [strong, cracked], domain, contact=ContactSettings(fragments=fragments),
+                          boundaries=[], gravity=(0.0, 0.0, 0.0), backend=backend, reorder_every=0)
+    return solver, half
+
+
+def colliding_spheres(*, grid: int = 32, radius: float = 0.12, fragments: bool = True,
+                      backend: str = "auto") -> CollisionMPM:
+    """Two weak NACC spheres (α0 = −0.01) colliding off-centre at 3 m/s relative, no gravity or walls."""
+    domain = Domain((0, 0, 0), (1, 1, 1), grid)
+    spacing = domain.dx / 2
+    material = NACCMaterial(E=2e4, nu=0.3, density=2.0, alpha0=-0.01, beta=0.5, xi=1.0, M=2.36)
+    bodies = [LatticeBody(lattice_sphere((0.5 - radius - spacing, 0.5, 0.5), radius, spacing), (2.0, 0.0, 0.3), 0,
+                          spacing),
+              LatticeBody(lattice_sphere((0.5 + radius + spacing, 0.52, 0.5), radius, spacing), (-1.0, 0.2, 0.0), 0,
+                          spacing)]
+    return CollisionMPM(particle_set(bodies, [material.density]), [material], domain,
+                        contact=ContactSettings(fragments=fragments), boundaries=[], gravity=(0.0, 0.0, 0.0),
+                        backend=backend)
