@@ -251,7 +251,7 @@ def test_momentum_is_conserved_with_fragments():
     solver = colliding_spheres(grid=32, fragments=True)
     p0 = solver.diagnostics()["momentum"]
     start, peak, split = total_energy(solver), total_energy(solver), 0
-    for i in range(200):
+    for i in range(400):
         solver.step(solver.stable_dt())
         split += solver.last_split_particles
         if i % 20 == 0:

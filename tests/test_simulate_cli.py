@@ -342,11 +342,20 @@ def wait_for_file(proc: subprocess.Popen[str], path: Path, timeout: float = 120)
         time.sleep(0.05)
 
 
+def _like_a_terminal() -> None:
+    """In the child before exec: SIGINT delivered and handled the default way, as from a shell.
+
+    A blocked or ignored signal is inherited across exec; a library loaded by an earlier test in
+    this pytest process could leave SIGINT so, and the child would then never see the Ctrl-C."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _simulate_subprocess(args: list[str], cwd: Path, **kwargs: Any) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.Popen([sys.executable, str(REPO / "simulate.py"), *args], cwd=cwd,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            **kwargs)
+                            preexec_fn=_like_a_terminal, **kwargs)
 
 
 INVALID_CHANGES = [
