@@ -6,6 +6,7 @@ output folder with prescribed frames, so that what the renderer must draw is kno
 """
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,8 @@ import numpy as np
 import torch
 import yaml
 
+from fracture_gs.cli.simulate import run_simulation
+from fracture_gs.config.scene import parse_scene
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.render.model_folder import write_model_folder
 
@@ -92,3 +95,10 @@ def identity_frames(rest_x: np.ndarray, count: int) -> list[dict[str, np.ndarray
     n = rest_x.shape[0]
     return [{"x": rest_x.astype(np.float32), "F_E": np.tile(np.eye(3, dtype=np.float32), (n, 1, 1)),
              "fractured": np.zeros(n, bool)} for _ in range(count)]
+
+
+def simulate_quietly(out: Path, scene: dict[str, Any]) -> Path:
+    """Run the real solver on ``scene`` into ``out`` on the CPU, without progress output."""
+    run_simulation(parse_scene(scene), out, device=torch.device("cpu"), progress=False,
+                   log=io.StringIO())
+    return out

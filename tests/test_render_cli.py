@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import importlib.util
-import io
 import shutil
 from pathlib import Path
 
@@ -15,11 +14,10 @@ import torch
 from PIL import Image
 
 from fracture_gs.cli import render as cli
-from fracture_gs.cli.simulate import run_simulation
-from fracture_gs.config.scene import parse_scene
 from fracture_gs.render import rasterize
 from fracture_gs.render.frame_gaussians import read_frame_ply
-from render_scenes import SPACING, block_scene, identity_frames, lattice_block, write_model, write_sim
+from render_scenes import (SPACING, block_scene, identity_frames, lattice_block, simulate_quietly,
+                           write_model, write_sim)
 
 SIZE = (65, 49)  # odd on purpose: the MP4 writer pads to even sizes
 
@@ -38,10 +36,7 @@ def tiny_collision() -> dict:
 
 @pytest.fixture(scope="module")
 def tiny_sim(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("render") / "sim"
-    run_simulation(parse_scene(tiny_collision()), out, device=torch.device("cpu"),
-                   progress=False, log=io.StringIO())
-    return out
+    return simulate_quietly(tmp_path_factory.mktemp("render") / "sim", tiny_collision())
 
 
 def test_renders_a_tiny_simulation_end_to_end(tiny_sim: Path, capsys):

@@ -5,7 +5,6 @@ viser's Python handle changes the picture. Closing the browser ends the viewer a
 period, with no thread left behind. Skipped only when Chromium or its driver is absent."""
 from __future__ import annotations
 
-import io
 import threading
 import time
 from pathlib import Path
@@ -14,12 +13,12 @@ import numpy as np
 import pytest
 import torch
 
-from fracture_gs.cli.simulate import run_simulation
-from fracture_gs.config.scene import parse_scene, read_yaml
+from fracture_gs.config.scene import read_yaml
 from fracture_gs.render.frame_gaussians import FLAT_PALETTE
 from fracture_gs.viewer.app import Viewer, ViewerOptions
 from fracture_gs.viewer.browser import HeadlessBrowser, colour_coverage, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
+from render_scenes import simulate_quietly
 
 pytestmark = pytest.mark.skipif(find_chromium() is None,
                                 reason="no system Chromium / chromedriver (apt-get install "
@@ -45,10 +44,7 @@ def tiny_collision() -> dict:
 
 @pytest.fixture(scope="module")
 def tiny_sim(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("viewer_browser") / "sim"
-    run_simulation(parse_scene(tiny_collision()), out, device=torch.device("cpu"),
-                   progress=False, log=io.StringIO())
-    return out
+    return simulate_quietly(tmp_path_factory.mktemp("viewer_browser") / "sim", tiny_collision())
 
 
 def _canvas(browser: HeadlessBrowser) -> np.ndarray:
