@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
 import shutil
 from pathlib import Path
 
@@ -142,7 +141,6 @@ def test_bad_inputs_stop_with_one_line(cracked_block: Path, tmp_path: Path, caps
     assert not (cracked_block / "renders").exists()
 
 
-@pytest.mark.skipif(importlib.util.find_spec("fracture_gs.cli.render_model") is not None,
-                    reason="render_model exists: -m is handled there")
-def test_model_renders_are_not_in_this_build(capsys):
-    assert "not available in this build" in run_failing(["-m", "output/teapot"], capsys)
+def test_model_option_goes_to_the_static_model_renderer(tmp_path, capsys):
+    missing = tmp_path / "no_model"
+    assert run_failing(["-m", str(missing)], capsys) == f"error: {missing}: model folder not found"

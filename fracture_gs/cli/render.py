@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import importlib.util
 import io
 import sys
 import time
@@ -322,10 +321,6 @@ def _render_model(argv: list[str]) -> int:
     if "--sim" in argv or any(a.startswith("--sim=") for a in argv):
         print("error: give either --sim (a simulation) or -m (a trained model), not both",
               file=sys.stderr)
-        return 2
-    if importlib.util.find_spec("fracture_gs.cli.render_model") is None:
-        print("error: -m: rendering a trained model is not available in this build "
-              "(fracture_gs.cli.render_model is missing)", file=sys.stderr)
         return 2
     from fracture_gs.cli import render_model
 
