@@ -105,6 +105,22 @@ def test_parts_assigned_as_designed(objects):
     assert np.mean(assign_part_ids(natural, shapes.FICUS_PARTS) == ficus.face_parts) > 0.999
 
 
+@pytest.mark.parametrize("name", ["table", "ficus"])
+def test_part_rules_survive_a_reconstruction_sized_surface_error(objects, name):
+    """train.py assigns part_id from parts.json at reconstructed positions, a few millimetres off
+    the true surface (issue 10 asks >= 99 % agreement with the part at the nearest true surface
+    point). A rule plane lying on a large face (the table's underside) flips that whole face;
+    the planes sit in thin sections instead, so moving every surface point 5 mm (natural units)
+    along its normal, in or out, changes almost no label."""
+    obj = objects[name]
+    points, face = trimesh.sample.sample_surface_even(obj.mesh, 20000, seed=1)
+    normals = obj.mesh.face_normals[face]
+    labels = assign_part_ids(points, obj.part_spec)
+    for sign in (1.0, -1.0):
+        moved = assign_part_ids(points + sign * 0.005 * obj.scale * normals, obj.part_spec)
+        assert np.mean(moved == labels) >= 0.995, (name, sign)
+
+
 def test_textures_are_valid_and_varied(objects):
     for obj in objects.values():
         for piece in obj.pieces():

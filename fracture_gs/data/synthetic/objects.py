@@ -29,12 +29,16 @@ class PartLook:
 
 @dataclass(frozen=True)
 class Recipe:
-    """How to build one object: its SDF builder (resolution, seed), parts and looks."""
+    """How to build one object: its SDF builder (resolution, seed), parts and looks.
+
+    ``look_spec`` says which look each face gets where that differs from the material parts of
+    ``part_spec`` (None: the same rules)."""
 
     build_sdf: Callable[[int, int], tuple[np.ndarray, Grid]]
     part_spec: PartSpec
     looks: tuple[PartLook, ...]
     description: str
+    look_spec: PartSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -106,7 +110,7 @@ RECIPES: dict[str, Recipe] = {
     "table": Recipe(lambda resolution, seed: shapes.table_sdf(resolution), shapes.TABLE_PARTS,
                     (PartLook(textures.oak_top, 0.45, 0.4),
                      PartLook(textures.walnut_legs, 0.55, 0.3)),
-                    "table: rounded top (part 0) on four tapered legs (part 1)"),
+                    "table: rounded top (part 0) on four tapered legs (part 1)", shapes.TABLE_LOOK_PARTS),
     "ficus": Recipe(shapes.ficus_sdf, shapes.FICUS_PARTS,
                     (PartLook(_pot_texture, 0.8, 0.2), PartLook(textures.bark, 0.85, 0.2),
                      PartLook(textures.foliage, 0.45, 0.4)),
@@ -123,10 +127,11 @@ def build_object(name: str, resolution: int = 256, seed: int = 0) -> SyntheticOb
     recipe = RECIPES[name]
     sdf, grid = recipe.build_sdf(resolution, seed)
     natural_mesh = drop_small_components(mesh_from_sdf(sdf, grid))
-    face_parts_natural = assign_part_ids(natural_mesh.triangles_center, recipe.part_spec)
+    look_spec = recipe.look_spec if recipe.look_spec is not None else recipe.part_spec
+    face_parts_natural = assign_part_ids(natural_mesh.triangles_center, look_spec)
     mesh, center, scale = normalise_to_unit_sphere(natural_mesh)
     spec = transform_part_spec(recipe.part_spec, center, scale)
-    face_parts = assign_part_ids(mesh.triangles_center, spec)
+    face_parts = assign_part_ids(mesh.triangles_center, transform_part_spec(look_spec, center, scale))
     if not np.array_equal(face_parts, face_parts_natural):  # rounding at a rule boundary
         face_parts = face_parts_natural
     return SyntheticObject(name, mesh, spec, face_parts.astype(np.int32), center, scale,
