@@ -91,7 +91,8 @@ def compiled_partition(device: str, geometry: GridGeometry, p: dict, dt: float, 
     ops.p2g(bins, *(on[k] for k in P2G_KEYS), on["grid_id"], fields_geo, dt, fields, backend="cpp",
             fractured=on["fractured"])
     after_p2g = cast(fields, torch.float32)
-    gradient = ops.fragment_reference(bins, on["x"], on["grid_id"], geometry, 1e-12, fields, backend="cpp")
+    gradient = ops.fragment_reference(bins, on["x"], on["grid_id"], geometry, 1e-12, split_gradient, fields,
+                                      backend="cpp")
     after_reference = cast(fields, torch.float32)
     split_particle, split_keys = ops.fragment_partition(bins, *(on[k] for k in P2G_KEYS), on["grid_id"], geometry,
                                                         dt, gradient, split_gradient, fields, backend="cpp")
@@ -125,7 +126,7 @@ def test_fragment_kernels_match_reference(seed, device):
 
     # 2. Damage gradients and references (the twin reads the compiled P2G fields).
     twin_ref = cast(p2g_fields, torch.float32)
-    twin_gradient = reference.fragment_reference(p["x"], p["grid_id"], geometry, 1e-12, twin_ref)
+    twin_gradient = reference.fragment_reference(p["x"], p["grid_id"], geometry, 1e-12, split_gradient, twin_ref)
     assert rel_err(gradient, twin_gradient) < REL_TOL
     assert float(gradient.norm(dim=1).max()) > split_gradient  # the slab does give split nodes
     keys, twin_keys = ref_fields.reference[:K][touched], twin_ref.reference[:K][touched]

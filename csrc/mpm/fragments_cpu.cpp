@@ -41,8 +41,8 @@ void for_cells_by_color(const BinsView& bins, const Body& body) {
 }  // namespace
 
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
-                            const float* grid_mass, const float* grid_damage, float* damage_gradient,
-                            int64_t* reference) {
+                            uint32_t split_bits, const float* grid_mass, const float* grid_damage,
+                            float* damage_gradient, int64_t* reference) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
@@ -59,8 +59,8 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
         continue;
       }
       particle_damage_gradient(x + 3 * (long long)q, g, geo, grid_mass, grid_damage, mass_eps, gq);
-      if (gq[0] == 0.f && gq[1] == 0.f && gq[2] == 0.f) continue;
       const int64_t key = damage_key(gq, q);
+      if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       AxisWeights aw[3];
       stencil_weights(x + 3 * (long long)q, geo, aw);
       for (int a = 0; a < 3; ++a)
@@ -108,22 +108,31 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
       const int q = bins.order[it];
       AxisWeights aw[3];
       stencil_weights(p.x + 3 * (long long)q, geo, aw);
-      const float m = p.mass[q];
-      const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
-      float A[9];
-      apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
-      uint8_t reached = 0;
+      // The split nodes of q's stencil first: most particles of a cell near a crack reach none,
+      // and then need no APIC matrix either.
+      long long split_node[27];
+      int split_abc[27], n_split = 0;
       for (int a = 0; a < 3; ++a)
         for (int b = 0; b < 3; ++b)
           for (int c = 0; c < 3; ++c) {
             const long long node = node_index(aw[0].base + a, aw[1].base + b, aw[2].base + c, s);
             if (!key_is_split(keys[node], frag.split_bits)) continue;
-            reached = 1;
-            const long long idx = (long long)fragment_field(frag, g, q, node, nodes) * nodes + node;
-            p2g_node_add(aw, a, b, c, m, mv, A, geo.dx, grid.mass + idx, grid.momentum + 3 * idx,
-                         grid.mass_gradient + 3 * idx, grid.position_moment + 3 * idx);
+            split_node[n_split] = node;
+            split_abc[n_split++] = 9 * a + 3 * b + c;
           }
-      split_particle[q] = reached;
+      split_particle[q] = n_split > 0 ? 1 : 0;
+      if (n_split == 0) continue;
+      const float m = p.mass[q];
+      const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
+      float A[9];
+      apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
+      for (int k = 0; k < n_split; ++k) {
+        const long long node = split_node[k];
+        const int a = split_abc[k] / 9, b = (split_abc[k] / 3) % 3, c = split_abc[k] % 3;
+        const long long idx = (long long)fragment_field(frag, g, q, node, nodes) * nodes + node;
+        p2g_node_add(aw, a, b, c, m, mv, A, geo.dx, grid.mass + idx, grid.momentum + 3 * idx,
+                     grid.mass_gradient + 3 * idx, grid.position_moment + 3 * idx);
+      }
     }
   });
 }

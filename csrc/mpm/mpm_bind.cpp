@@ -71,10 +71,18 @@ BinsView bins_view(const std::vector<Tensor>& bins, const Tensor& color_start) {
 }
 
 // Fragment view from (damage_gradient (N,3) float, reference (K*nodes) int64, split_particle (N) uint8).
+// Float bits of split_gradient^2: a reference key splits its node where its high word is >= them.
+uint32_t split_bits_of(double split_gradient) {
+  TORCH_CHECK(split_gradient > 0.0, "split_gradient must be > 0");
+  const float threshold = (float)(split_gradient * split_gradient);
+  uint32_t bits;
+  std::memcpy(&bits, &threshold, sizeof(threshold));
+  return bits;
+}
+
 FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo, double split_gradient,
                            const Tensor& like) {
   TORCH_CHECK(f.size() == 3, "fragments must hold (damage_gradient, reference, split_particle)");
-  TORCH_CHECK(split_gradient > 0.0, "split_gradient must be > 0");
   check_tensor(f[0], "damage_gradient", torch::kFloat32, like);
   check_tensor(f[1], "reference", torch::kInt64, like);
   check_tensor(f[2], "split_particle", torch::kUInt8, like);
@@ -82,8 +90,7 @@ FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo,
   TORCH_CHECK(f[1].numel() >= (int64_t)geo.n_grids * geo.shape.nodes(), "reference is too small");
   FragmentView v;
   v.n_fields = geo.n_grids;
-  const float threshold = (float)(split_gradient * split_gradient);
-  std::memcpy(&v.split_bits, &threshold, sizeof(threshold));
+  v.split_bits = split_bits_of(split_gradient);
   v.damage_gradient = f[0].data_ptr<float>();
   v.reference = f[1].data_ptr<int64_t>();
   v.split_particle = f[2].data_ptr<uint8_t>();
@@ -94,9 +101,10 @@ FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo,
 // are those of P2G; grid_damage and grid_reference as P2G left them. Returns damage_gradient (N,3).
 Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& grid_id,
                           const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
-                          int64_t n_grids, double mass_eps, const Tensor& grid_mass, const Tensor& grid_damage,
-                          Tensor grid_reference) {
+                          int64_t n_grids, double mass_eps, double split_gradient, const Tensor& grid_mass,
+                          const Tensor& grid_damage, Tensor grid_reference) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  const uint32_t split_bits = split_bits_of(split_gradient);
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
   check_tensor(x, "x", torch::kFloat32, x);
   check_tensor(grid_id, "grid_id", torch::kInt32, x);
@@ -112,14 +120,14 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
     for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
     Tensor color_start = bins[4];
     const BinsView view = bins_view(bins, color_start);
-    fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, grid_mass.data_ptr<float>(),
+    fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, split_bits, grid_mass.data_ptr<float>(),
                            grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
                            grid_reference.data_ptr<int64_t>());
     return damage_gradient;
   }
 #ifdef FGS_WITH_CUDA
   fragment_reference_cuda(x.size(0), x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), geo, (float)mass_eps,
-                          grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
+                          split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
                           grid_reference.data_ptr<int64_t>(), current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");

@@ -76,11 +76,12 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
                  const float* grid_velocity, G2POutputs out, const FragmentView* frag = nullptr);
 
 // Fragments (csrc/common/mpm_fragments.h). geo.n_grids = K object grids; the grid arrays hold 2K.
-// Damage gradient of every particle and the reference key of every node its stencil reaches
-// (reference must be zero on entry: P2G clears it on touched blocks).
+// Damage gradient of every particle and, at every node its stencil reaches, the reference key
+// (reference must be zero on entry: P2G clears it on touched blocks). Only keys that split a node
+// (|grad D|^2 bits >= split_bits) are stored: the others could never be read.
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
-                            const float* grid_mass, const float* grid_damage, float* damage_gradient,
-                            int64_t* reference);
+                            uint32_t split_bits, const float* grid_mass, const float* grid_damage,
+                            float* damage_gradient, int64_t* reference);
 // Zeroes field A at the split nodes of the touched blocks; split_block[key] = 1 for (grid, block)
 // keys that hold one.
 void fragment_split_nodes_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
@@ -108,7 +109,7 @@ void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt
               const float* grid_velocity, G2POutputs out, long long* stats, void* stream,
               const FragmentView* frag = nullptr);
 void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
-                             float mass_eps, const float* grid_mass, const float* grid_damage, float* damage_gradient,
+                             float mass_eps, uint32_t split_bits, const float* grid_mass, const float* grid_damage, float* damage_gradient,
                              int64_t* reference, void* stream);
 void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                                const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream);

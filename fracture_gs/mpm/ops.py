@@ -78,14 +78,15 @@ def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, frict
 
 
 def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
-                       mass_eps: float, grid: GridFields, backend: str = "auto") -> torch.Tensor:
+                       mass_eps: float, split_gradient: float, grid: GridFields, backend: str = "auto") -> torch.Tensor:
     """Fragments, step 2: every particle's damage gradient ∇D_p = Σ D_i ∇w_ip (returned, (N, 3)) and
-    every node's reference key (``grid.reference``: the largest |∇D_p| reaching it). ``geometry``
-    names the K object grids; P2G must have run with ``fractured``."""
+    every node's reference key (``grid.reference``: the largest |∇D_p| reaching it, stored only where
+    it reaches ``split_gradient`` (1/length), i.e. where it splits the node; 0 elsewhere).
+    ``geometry`` names the K object grids; P2G must have run with ``fractured``."""
     if use_compiled(x.device, backend):
         return compiled_module().mpm_fragment_reference(bins.as_list(), x, grid_id, *geometry.args(), mass_eps,
-                                                        grid.mass, grid.damage, grid.reference)
-    return reference.fragment_reference(x, grid_id, geometry, mass_eps, grid)
+                                                        split_gradient, grid.mass, grid.damage, grid.reference)
+    return reference.fragment_reference(x, grid_id, geometry, mass_eps, split_gradient, grid)
 
 
 def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,

@@ -125,10 +125,11 @@ def _norm_sq_bits(g: torch.Tensor) -> torch.Tensor:
 
 
 def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, mass_eps: float,
-                       grid: GridFields) -> torch.Tensor:
+                       split_gradient: float, grid: GridFields) -> torch.Tensor:
     """Damage gradients ∇D_p = Σ_i D_i ∇w_ip with D_i = damage_i / mass_i (returned, (N, 3)), and the
     reference key of every node: the maximum over the particles reaching it of
-    (bits(|∇D_p|²) << 32) | p (0 where none has a non-zero gradient). ``geometry``: K object grids."""
+    (bits(|∇D_p|²) << 32) | p, counting only particles with |∇D_p| >= ``split_gradient`` (the keys
+    that split a node; 0 where none does). ``geometry``: K object grids."""
     assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
     index, _, gradient, _ = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
@@ -138,7 +139,7 @@ def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeo
     damage_gradient = (node_damage[..., None] * gradient).sum(1)
     particle = torch.arange(x.shape[0], device=x.device, dtype=torch.int64)
     key = (_norm_sq_bits(damage_gradient) << 32) | particle
-    key = torch.where((damage_gradient != 0).any(1), key, torch.zeros_like(key))
+    key = torch.where((key >> 32) >= _split_bits(split_gradient), key, torch.zeros_like(key))
     grid.reference.view(-1).scatter_reduce_(0, index.flatten(), key[:, None].expand(-1, 27).flatten(), "amax")
     return damage_gradient
 
@@ -147,8 +148,7 @@ def _fragment_fields(index: torch.Tensor, grid_id: torch.Tensor, damage_gradient
                      reference_keys: torch.Tensor, split_gradient: float, n_fields: int, nodes: int):
     """Per (particle, stencil node): is the node split, and the grid (0..2K-1) the particle uses there."""
     key = reference_keys.reshape(-1)[index]                             # (N,27)
-    threshold_bits = int(torch.tensor([split_gradient ** 2], dtype=torch.float32).view(torch.int32))
-    split = (key > 0) & ((key >> 32) >= threshold_bits)
+    split = (key > 0) & ((key >> 32) >= _split_bits(split_gradient))
     ref = key & 0xFFFFFFFF
     side = ((damage_gradient[:, None, :] * damage_gradient[ref]).sum(-1) < 0) & split
     field = grid_id.long()[:, None] + n_fields * side.long()
@@ -184,8 +184,12 @@ def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress
 
 def _split_nodes(reference_keys: torch.Tensor, split_gradient: float) -> torch.Tensor:
     """(…) bool: nodes whose reference key names a gradient |∇D| >= split_gradient."""
-    threshold_bits = int(torch.tensor([split_gradient ** 2], dtype=torch.float32).view(torch.int32))
-    return ((reference_keys > 0) & ((reference_keys >> 32) >= threshold_bits)).flatten()
+    return ((reference_keys > 0) & ((reference_keys >> 32) >= _split_bits(split_gradient))).flatten()
+
+
+def _split_bits(split_gradient: float) -> int:
+    """Float32 bits of split_gradient²: a reference key splits its node where its high word is >= them."""
+    return int(torch.tensor([split_gradient ** 2], dtype=torch.float32).view(torch.int32))
 
 
 def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields) -> None:

@@ -170,7 +170,8 @@ class CollisionMPM:
         passes use (touched: plus the fields B of split blocks; contact: plus the split blocks) and
         what G2P needs, or (bins, None) where no node is split."""
         p, s, g, geo = self.particles, self.state, self.grid, self.geometry
-        damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, g, self.backend)
+        damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, self.split_gradient, g,
+                                                 self.backend)
         split_particle, split_keys = ops.fragment_partition(
             bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, damage_gradient,
             self.split_gradient, g, self.backend)
