@@ -289,13 +289,16 @@ class CollisionMPM:
     # ------------------------------------------------------------------ checkpoints
     def state_dict(self) -> dict:
         """Everything needed to continue bit-identically (numpy arrays in the solver's current
-        particle order, that order as ``input_index``, and the clock)."""
+        particle order, that order as ``input_index``, the clock, and the largest speed that G2P
+        reported, which sets the next CFL step: recomputing it from ``v`` with torch can differ
+        in the last bit and change every step after a resume)."""
         arrays = {key: getattr(self.state, key) for key in STATE_KEYS if key != "stress"}
         arrays["stress"] = self.stress
         arrays["input_index"] = self.input_index
         out = {key: value.cpu().numpy() for key, value in arrays.items()}
         out["time"] = np.float64(self.state.time)
         out["step"] = np.int64(self.state.step)
+        out["max_speed"] = np.float64(self.max_speed)
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -323,5 +326,7 @@ class CollisionMPM:
                               F_E=tensors["F_E"].float(), alpha=tensors["alpha"].float(),
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
-        self.max_speed = float(self.state.v.norm(dim=1).max()) if n else 0.0
+        # Checkpoints from before max_speed was stored: recomputed (may differ in the last bit).
+        self.max_speed = (float(data["max_speed"]) if "max_speed" in data
+                          else float(self.state.v.norm(dim=1).max()) if n else 0.0)
         self._fragment_cache = None  # labels belong to the state they were computed from
