@@ -51,15 +51,24 @@ Tensor to_tensor(const std::vector<int32_t>& values) {
   return t;
 }
 
-GridArrays grid_arrays(const Tensor& mass, const Tensor& momentum, const Tensor& velocity,
-                       const std::optional<Tensor>& mass_gradient, const std::optional<Tensor>& position_moment) {
+// The grid fields a kernel reads, each checked first (float32, contiguous, on like's device, one
+// value or a 3-vector per node of geo's grids); the mass is required, an undefined or absent other
+// field becomes nullptr.
+GridArrays grid_arrays(const MPMGeometry& geo, const Tensor& like, const Tensor& mass, const Tensor& momentum,
+                       const Tensor& velocity, const std::optional<Tensor>& mass_gradient,
+                       const std::optional<Tensor>& position_moment) {
+  const auto checked = [&](const Tensor& t, const char* name, int channels) -> float* {
+    if (!t.defined()) return nullptr;
+    check_grid(t, name, channels, geo, like);
+    return t.data_ptr<float>();
+  };
   GridArrays g;
-  g.mass = mass.defined() ? mass.data_ptr<float>() : nullptr;
-  g.momentum = momentum.defined() ? momentum.data_ptr<float>() : nullptr;
-  g.velocity = velocity.defined() ? velocity.data_ptr<float>() : nullptr;
-  g.mass_gradient = (mass_gradient.has_value() && mass_gradient->defined()) ? mass_gradient->data_ptr<float>() : nullptr;
-  g.position_moment =
-      (position_moment.has_value() && position_moment->defined()) ? position_moment->data_ptr<float>() : nullptr;
+  TORCH_CHECK(mass.defined(), "grid_mass is required");
+  g.mass = checked(mass, "grid_mass", 1);
+  g.momentum = checked(momentum, "grid_momentum", 3);
+  g.velocity = checked(velocity, "grid_velocity", 3);
+  g.mass_gradient = mass_gradient ? checked(*mass_gradient, "grid_mass_gradient", 3) : nullptr;
+  g.position_moment = position_moment ? checked(*position_moment, "grid_position_moment", 3) : nullptr;
   return g;
 }
 
@@ -155,17 +164,13 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
   TORCH_CHECK(v.numel() == 3 * n && C.numel() == 9 * n && stress.numel() == 9 * n && mass.numel() == n &&
                   rest_volume.numel() == n && grid_id.numel() == n && damage_gradient.numel() == 3 * n,
               "fragment_partition: particle arrays have inconsistent sizes");
-  check_grid(grid_mass, "grid_mass", 1, both, x);
-  check_grid(grid_momentum, "grid_momentum", 3, both, x);
-  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, both, x);
-  check_grid(grid_position_moment, "grid_position_moment", 3, both, x);
+  GridArrays grid = grid_arrays(both, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
   Tensor split_particle = torch::zeros({n}, x.options().dtype(torch::kUInt8));
   Tensor split_block = torch::zeros({(int64_t)geo.n_grids * geo.shape.blocks()}, x.options().dtype(torch::kUInt8));
   const FragmentView frag = fragment_view({damage_gradient, grid_reference, split_particle}, geo, split_gradient, x);
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   Tensor color_start = bins[4].to(torch::kCPU);
   const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
@@ -190,12 +195,8 @@ void fragment_clear(const Tensor& keys, const std::vector<double>& lower, double
                     Tensor grid_mass_gradient, Tensor grid_position_moment) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(keys, "keys", torch::kInt32, grid_mass);
-  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
-  check_grid(grid_momentum, "grid_momentum", 3, geo, grid_mass);
-  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
-  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
-  check_grid(grid_position_moment, "grid_position_moment", 3, geo, grid_mass);
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, grid_mass_gradient, grid_position_moment);
+  GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, grid_momentum, grid_velocity, grid_mass_gradient,
+                                grid_position_moment);
   if (grid_mass.device().is_cpu()) {
     fragment_clear_cpu(keys.data_ptr<int32_t>(), (int)keys.numel(), geo, grid);
     return;
@@ -241,10 +242,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   TORCH_CHECK(v.numel() == 3 * n && C.numel() == 9 * n && stress.numel() == 9 * n && mass.numel() == n &&
                   rest_volume.numel() == n && grid_id.numel() == n,
               "p2g: particle arrays have inconsistent sizes");
-  check_grid(grid_mass, "grid_mass", 1, geo, x);
-  check_grid(grid_momentum, "grid_momentum", 3, geo, x);
-  if (grid_mass_gradient) check_grid(*grid_mass_gradient, "grid_mass_gradient", 3, geo, x);
-  if (grid_position_moment) check_grid(*grid_position_moment, "grid_position_moment", 3, geo, x);
+  GridArrays grid = grid_arrays(geo, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
   TORCH_CHECK(fractured.has_value() == grid_damage.has_value() && fractured.has_value() == grid_reference.has_value(),
               "p2g: give fractured, grid_damage and grid_reference together (fragments) or none");
@@ -258,7 +256,6 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(),
                    fractured ? reinterpret_cast<const uint8_t*>(fractured->data_ptr<bool>()) : nullptr};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   if (fractured) {
     grid.damage = grid_damage->data_ptr<float>();
     grid.reference = grid_reference->data_ptr<int64_t>();
@@ -281,12 +278,9 @@ void grid_update(const Tensor& touched, const std::vector<double>& lower, double
                  Tensor grid_momentum, Tensor grid_velocity) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(touched, "touched", torch::kInt32, grid_mass);
-  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
-  check_grid(grid_momentum, "grid_momentum", 3, geo, grid_mass);
-  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, grid_momentum, grid_velocity, std::nullopt, std::nullopt);
   TORCH_CHECK(gravity.size() == 3, "gravity must have 3 entries");
   const float g[3] = {(float)gravity[0], (float)gravity[1], (float)gravity[2]};
-  GridArrays grid = grid_arrays(grid_mass, grid_momentum, grid_velocity, std::nullopt, std::nullopt);
   if (grid_mass.device().is_cpu()) {
     grid_update_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid);
     return;
@@ -320,11 +314,9 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
                 Tensor grid_velocity) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(touched, "touched", torch::kInt32, grid_mass);
-  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
-  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
+  GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, Tensor(), grid_velocity, std::nullopt, std::nullopt);
   const BoundaryParams bc = make_boundary(wall_condition, wall_cells, cells, has_ground, ground_height,
                                           ground_friction, lower[2], dx);
-  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, std::nullopt, std::nullopt);
   if (grid_mass.device().is_cpu()) {
     boundaries_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid);
     return;
@@ -343,14 +335,11 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
                Tensor grid_position_moment) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(contact_blocks, "contact_blocks", torch::kInt32, grid_mass);
-  check_grid(grid_mass, "grid_mass", 1, geo, grid_mass);
-  check_grid(grid_velocity, "grid_velocity", 3, geo, grid_mass);
-  check_grid(grid_mass_gradient, "grid_mass_gradient", 3, geo, grid_mass);
-  check_grid(grid_position_moment, "grid_position_moment", 3, geo, grid_mass);
+  GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, Tensor(), grid_velocity, grid_mass_gradient,
+                                grid_position_moment);
   TORCH_CHECK(strength >= 0.0 && strength <= 2.0, "contact strength must satisfy 0 <= s <= 2, got ", strength);
   TORCH_CHECK(friction >= 0.0, "contact friction must be >= 0, got ", friction);
   const ContactParams params{(float)strength, (float)friction, (float)mass_eps, (float)max_gap};
-  GridArrays grid = grid_arrays(grid_mass, Tensor(), grid_velocity, grid_mass_gradient, grid_position_moment);
   if (grid_mass.device().is_cpu()) {
     collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid);
     return;
