@@ -8,12 +8,7 @@ benchmarks/bench_mpm.py.
 """
 from __future__ import annotations
 
-import hashlib
-import os
-import subprocess
-import sys
 import textwrap
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,15 +17,15 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
-from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
+from fracture_gs.mpm.fragment_scenes import colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry
 from fracture_gs.mpm.types import BLOCK, Domain
 from kernel_devices import KERNEL_DEVICES
+from thread_counts import last_lines_per_thread_count
 
 pytestmark = pytest.mark.extension  # tests/conftest.py: skipped without _C, failed in CI
 
-ROOT = Path(__file__).resolve().parents[1]
 REL_TOL = 1e-4
 CPU = torch.device("cpu")
 
@@ -206,12 +201,7 @@ STATE_HASH_SCRIPT = textwrap.dedent("""
 
 
 def test_fragment_kernels_are_deterministic_for_any_thread_count():
-    outputs = []
-    for threads in ("1", "2", "3"):
-        env = dict(os.environ, OMP_NUM_THREADS=threads)
-        result = subprocess.run([sys.executable, "-c", STATE_HASH_SCRIPT], env=env, capture_output=True, text=True,
-                                check=True, cwd=ROOT)
-        outputs.append(result.stdout.strip().splitlines()[-1])
+    outputs = last_lines_per_thread_count(STATE_HASH_SCRIPT)
     assert int(outputs[0].split()[0]) > 0, "the scene must really split nodes"
     assert len(set(outputs)) == 1, outputs
 

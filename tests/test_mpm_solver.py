@@ -1,10 +1,6 @@
 """Whole solver: compiled vs reference backend, determinism across thread counts, checkpoints."""
 from __future__ import annotations
 
-import hashlib
-import os
-import subprocess
-import sys
 import textwrap
 from pathlib import Path
 
@@ -17,6 +13,7 @@ from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.fragment_scenes import block_drop
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary, SimulationBlowUp
+from thread_counts import last_lines_per_thread_count
 
 needs_compiled = pytest.mark.extension  # tests/conftest.py: skipped without _C, failed in CI
 BACKENDS = [pytest.param("cpp", marks=needs_compiled), "reference"]
@@ -73,13 +70,7 @@ STATE_HASH_SCRIPT = textwrap.dedent("""
 
 @needs_compiled
 def test_cpu_kernels_are_deterministic_for_any_thread_count():
-    script = STATE_HASH_SCRIPT.format(tests=str(ROOT / "tests"))
-    digests = []
-    for threads in ("1", "2", "3"):
-        env = dict(os.environ, OMP_NUM_THREADS=threads)
-        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
-                                check=True, cwd=ROOT)
-        digests.append(result.stdout.strip().splitlines()[-1])
+    digests = last_lines_per_thread_count(STATE_HASH_SCRIPT.format(tests=str(ROOT / "tests")))
     assert len(set(digests)) == 1, digests
 
 

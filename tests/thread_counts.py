@@ -1,0 +1,21 @@
+"""Run a Python snippet under several OpenMP thread counts (the determinism tests)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def last_lines_per_thread_count(script: str, threads: tuple[str, ...] = ("1", "2", "3")) -> list[str]:
+    """The last stdout line of ``python -c script`` run from the repository root with each
+    ``OMP_NUM_THREADS`` in ``threads`` (in that order)."""
+    lines = []
+    for count in threads:
+        env = dict(os.environ, OMP_NUM_THREADS=count)
+        result = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
+                                check=True, cwd=ROOT)
+        lines.append(result.stdout.strip().splitlines()[-1])
+    return lines
