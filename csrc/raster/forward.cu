@@ -87,12 +87,12 @@ __global__ void __launch_bounds__(kBlock)
     const int count = min(kBlock, end - batch);
     for (int j = 0; j < count && !done; ++j) {
       const float* g = s_proj + j * kProjStride;
+      const bool excl = s_excl[j] != 0;
+      if (excl && taken) continue;  // one exclusive Gaussian per pixel: skip the others unseen
       float G;
       const float a = splat_alpha(g[kU], g[kV], g[kConicA], g[kConicB], g[kConicC], g[kOpacity],
                                   px, py, G);
       if (a < kAlphaMin) continue;
-      const bool excl = s_excl[j] != 0;
-      if (excl && taken) continue;
       const float test_T = T * (1.f - a);
       if (test_T < kTransmittanceMin) { done = true; continue; }
       const float w = a * T;

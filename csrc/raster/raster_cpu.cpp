@@ -296,11 +296,13 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
             // every few entries: stop once every lane has saturated
             if ((e & 3) == 0 && !any_lane(~done)) break;
             if (misses_row(list, e, py)) continue;
+            const LaneI excl = LaneI{} - list.exclusive[e];
+            // an exclusive entry cannot blend where every open lane has taken one already
+            if (list.exclusive[e] && !any_lane(~done & ~taken)) continue;
             LaneF G;
             const LaneF a = splat_alpha_lanes(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
                                               list.opacity[e], px, py, G);
             const LaneF test_T = T * (1.f - a);
-            const LaneI excl = LaneI{} - list.exclusive[e];
             const LaneI candidate = ~done & (a >= kAlphaMin) & ~(excl & taken);
             const LaneI stop = candidate & (test_T < kTransmittanceMin);
             if (!any_lane(candidate)) continue;
