@@ -346,3 +346,64 @@ def test_separate_floor_lets_a_block_leave_freely_slip_holds_its_bottom():
     print(f"[walls] mean vz at t=0.03 s minus free flight: separate={lift_off['separate']:.4f}, "
           f"slip={lift_off['slip']:.4f} (slip zeroes the normal velocity of the wall nodes both ways)")
     assert lift_off["slip"] < -0.01
+
+
+# ----------------------------------------------------------------------------- momentum balance
+# Gravity and the boundaries change total momentum; what they give is summed as the external
+# impulse J (fracture_gs/mpm/impulse.py), so p(t) - p(0) = J(t) must hold in every scene.
+
+def balance_scene(mode: str, fragments: bool, walls: str, backend: str = "auto") -> CollisionMPM:
+    """A weak NACC block dropped on a frictional ground and an elastic block thrown sideways into
+    the box wall, grid 32 (both boundaries and, in collision mode, two object grids act)."""
+    domain = Domain((0, 0, 0), (1, 1, 1), 32)
+    spacing = domain.dx / 2
+    weak = NACCMaterial(E=2.0e4, nu=0.3, density=1.0e3, alpha0=-0.01, beta=0.3, xi=1.0, M=2.36)
+    bodies = [LatticeBody(lattice_box((0.35, 0.5, 0.25), (0.2, 0.2, 0.1), spacing), (1.0, 0, -3.0), 0, spacing),
+              LatticeBody(lattice_box((0.8, 0.5, 0.2), (0.1, 0.15, 0.1), spacing), (4.0, 0.5, 0), 1, spacing)]
+    return CollisionMPM(particle_set(bodies, [weak.density, STIFF.density]), [weak, STIFF], domain,
+                        contact=ContactSettings(mode=mode, fragments=fragments),
+                        boundaries=[GroundBoundary(height=0.12, friction=0.4), BoxBoundary(walls)],
+                        gravity=(0, 0, -9.8), backend=backend)
+
+
+@pytest.mark.parametrize("mode,fragments,walls", [("collision", True, "slip"), ("collision", False, "sticky"),
+                                                  ("mls", False, "separate")])
+def test_momentum_change_equals_the_impulse_of_gravity_and_boundaries(mode, fragments, walls):
+    solver = balance_scene(mode, fragments, walls)
+    p0 = np.asarray(solver.diagnostics()["momentum"], dtype=np.float64)
+    scale = float((solver.particles.mass.double() * solver.state.v.double().norm(dim=1)).sum())
+    worst, drift = 0.0, 0.0
+    for _ in range(10):
+        solver.advance(0.008)
+        diagnostics = solver.diagnostics()
+        change = np.asarray(diagnostics["momentum"]) - p0
+        impulse = np.asarray(diagnostics["external_impulse"])
+        worst = max(worst, float(np.linalg.norm(change - impulse)) / max(scale, float(np.linalg.norm(impulse))))
+        drift = max(drift, float(np.linalg.norm(change)) / scale)
+    fractured = float(solver.state.fractured.float().mean())
+    print(f"[momentum balance] {mode}, fragments={fragments}, walls={walls}: drift {drift:.3g}, "
+          f"|p - p0 - J| {worst:.3g} (relative), fractured {fractured:.1%}")
+    assert drift > 0.2, "the scene must change momentum through gravity and the boundaries"
+    assert worst <= 1e-5
+
+
+def test_external_impulse_is_zero_without_gravity_and_boundary_contact():
+    solver = balance_scene("collision", True, "slip")
+    solver.gravity = (0.0, 0.0, 0.0)
+    solver.external_impulse.gravity_per_second.zero_()
+    # far from the ground and the walls: nothing outside acts
+    solver.state.x += torch.tensor([0.0, 0.0, 0.3]) - torch.tensor([0.2, 0.0, 0.0]) * (solver.particles.obj_id == 1)[:, None]
+    solver.state.v.zero_()
+    for _ in range(5):
+        solver.step(solver.stable_dt())
+    assert solver.diagnostics()["external_impulse"] == [0.0, 0.0, 0.0]
+
+
+def test_external_impulse_survives_a_checkpoint():
+    solver = balance_scene("collision", False, "slip")
+    solver.advance(0.01)
+    saved = solver.state_dict()
+    impulse = solver.diagnostics()["external_impulse"]
+    restored = balance_scene("collision", False, "slip")
+    restored.load_state_dict(saved)
+    assert restored.diagnostics()["external_impulse"] == impulse and np.linalg.norm(impulse) > 0

@@ -203,6 +203,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
                                      "--frames", "4", "--device", "cpu"], capsys)
     assert code == 0, stderr
     assert "momentum drift" in stdout and "fractured" in stdout and "clamped" in stdout
+    assert "momentum balance" in stdout
     assert load_scene(out / "scene.yaml") == replace(load_scene(scene), frames=4)
     with np.load(out / "particles.npz") as particles:
         assert set(particles.files) >= {"mass", "rest_volume", "obj_id", "part_id",
@@ -225,7 +226,8 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
     assert header == ["frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic",
                       "elastic", "gravitational", "total_energy", "fractured",
                       "left_px", "left_py", "left_pz", "left_kinetic",
-                      "right_px", "right_py", "right_pz", "right_kinetic", "fragments"]
+                      "right_px", "right_py", "right_pz", "right_kinetic", "fragments",
+                      "impulse_x", "impulse_y", "impulse_z"]
     table = read_diagnostics_csv(out / "diagnostics.csv")
     assert table["frame"].tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(table["time"], 0.01 * np.arange(5))

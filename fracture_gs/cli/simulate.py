@@ -43,6 +43,8 @@ class RunSummary:
     wall_time: float             # seconds spent in this call's frames
     momentum_drift: float        # |p(last) - p(0)|
     momentum_scale: float        # Σ m |v| at frame 0 (reference for the drift)
+    momentum_balance: float      # |p(last) - p(0) - J|, J the impulse of gravity and boundaries
+    external_impulse: float      # |J| at the last frame
     energy_start: float
     energy_end: float
     fractured: int
@@ -175,6 +177,7 @@ def check_resumable(output: SimulationOutput, config: SceneConfig, built: BuiltS
 def _print_summary(summary: RunSummary, stream: TextIO) -> None:
     rel = summary.momentum_drift / summary.momentum_scale if summary.momentum_scale > 0 \
         else float("nan")
+    balance_rel = summary.momentum_balance / max(summary.momentum_scale, summary.external_impulse, 1e-30)
     d_energy = summary.energy_end - summary.energy_start
     rel_e = d_energy / abs(summary.energy_start) if summary.energy_start != 0 else float("nan")
     frames_done = summary.last_frame - summary.first_frame + 1
@@ -186,6 +189,9 @@ def _print_summary(summary: RunSummary, stream: TextIO) -> None:
         f"  wall time      {summary.wall_time:.2f} s ({rate:.2f} frames/s)",
         f"  momentum drift |p_end - p_0| = {summary.momentum_drift:.4g} "
         f"({rel:.3g} of sum m|v| at frame 0; gravity and boundaries change it legitimately)",
+        f"  momentum balance |p_end - p_0 - J| = {summary.momentum_balance:.4g} "
+        f"(J = impulse of gravity and boundaries, |J| = {summary.external_impulse:.4g}; "
+        f"{balance_rel:.3g} relative)",
         f"  energy change  {summary.energy_start:.6g} -> {summary.energy_end:.6g} "
         f"({d_energy:+.4g}, {rel_e:+.2%})",
         f"  fractured      {summary.fractured / max(summary.particles, 1):.2%} "
@@ -230,6 +236,7 @@ def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int
     col = {name: rows[:, i] for i, name in enumerate(output.columns)}
     p0 = np.array([col["px"][0], col["py"][0], col["pz"][0]])
     p1 = np.array([col["px"][-1], col["py"][-1], col["pz"][-1]])
+    impulse = np.array([col[f"impulse_{a}"][-1] for a in "xyz"])
     start = load_frame(output.frame_path(0))
     mass = read_npz(output.particles_path)["mass"].astype(np.float64)
     scale = float(np.sum(mass * np.linalg.norm(start["v"].astype(np.float64), axis=1)))
@@ -239,6 +246,8 @@ def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int
         steps=int(steps.sum()), dt_min=float(np.nanmin(dts)) if dts.size else float("nan"),
         mean_dt=float(col["time"][-1] / steps.sum()) if steps.sum() > 0 else float("nan"),
         wall_time=wall, momentum_drift=float(np.linalg.norm(p1 - p0)), momentum_scale=scale,
+        momentum_balance=float(np.linalg.norm(p1 - p0 - impulse)),
+        external_impulse=float(np.linalg.norm(impulse)),
         energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
         fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped)
 

@@ -45,7 +45,7 @@ FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
 OBJECT_COLUMNS = ("px", "py", "pz", "kinetic")
-TAIL_COLUMNS = ("fragments",)
+TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z")
 
 
 def frame_file_name(frame: int) -> str:
@@ -54,8 +54,9 @@ def frame_file_name(frame: int) -> str:
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
     """CSV header: the SPEC §5.6 columns, then ``<name>_px, _py, _pz, _kinetic`` per object, then
-    ``fragments`` (pieces with >= 1 % of their object's particles; last, so old readers keep
-    their column positions)."""
+    ``fragments`` (pieces with >= 1 % of their object's particles) and ``impulse_x, _y, _z`` (the
+    impulse gravity and the boundaries gave since frame 0: p − p(0) equals it up to round-off);
+    last, so old readers keep their column positions."""
     return list(BASE_COLUMNS) + [f"{name}_{col}" for name in object_names
                                  for col in OBJECT_COLUMNS] + list(TAIL_COLUMNS)
 
@@ -86,6 +87,7 @@ def diagnostics_row(frame: int, time: float, steps: int, dt_min: float,
     for obj in diagnostics["per_object"]:
         row += [*_vector3(obj["momentum"]), _scalar(obj["kinetic"])]
     row.append(int(_scalar(diagnostics["fragments"])))
+    row += _vector3(diagnostics.get("external_impulse", [math.nan] * 3))
     return row
 
 

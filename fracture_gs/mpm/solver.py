@@ -17,6 +17,7 @@ import torch
 
 from fracture_gs.mpm import ops
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
+from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.materials import COLUMN, MaterialTable, elastic_energy
 from fracture_gs.mpm.ordering import spatial_order
@@ -87,6 +88,9 @@ class CollisionMPM:
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0
+        self.external_impulse = ExternalImpulse(self.field_geometry, self.wall_condition, self.ground_height,
+                                                self.gravity, float(self.particles.mass.double().sum()),
+                                                self.device)
         self.state = self._initial_state(table)
         # Bins of the latest substep (diagnostics; `order` indexes the particle order of that substep).
         self.last_bins: ParticleBins | None = None
@@ -146,8 +150,9 @@ class CollisionMPM:
         if self.use_contact or fragments is not None:
             ops.collision(field_bins, fields, self.contact.strength, self.contact.friction, self.mass_eps,
                           self.max_contact_gap, g, backend)
-        ops.boundaries(field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction,
-                       self.mass_eps, g, backend)
+        self.external_impulse.step(field_bins.touched, g, dt, lambda: ops.boundaries(
+            field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps, g,
+            backend))
         x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
             s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend,
             fragments=fragments)
@@ -247,7 +252,9 @@ class CollisionMPM:
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics(self) -> dict:
-        """Momentum and energies (float64 sums), total and per object, plus the fractured count."""
+        """Momentum and energies (float64 sums), total and per object, the fractured count, the
+        fragment count and the external impulse J since step 0 (gravity and boundaries;
+        :mod:`fracture_gs.mpm.impulse`): p(t) − p(0) = J(t) up to round-off."""
         p, s = self.particles, self.state
         mass = p.mass.double()
         v = s.v.double()
@@ -274,6 +281,7 @@ class CollisionMPM:
             "total_energy": float(kinetic.sum() + elastic.sum() + gravitational.sum()),
             "fractured": int(s.fractured.sum()),
             "fragments": count_fragments(self.fragment_ids(), self.input_particles.obj_id),
+            "external_impulse": self.external_impulse.state(),
             "per_object": [{"name": self.object_names[k], "momentum": mom_obj[k], "kinetic": float(kin_obj[k]),
                             "elastic": float(ela_obj[k]), "gravitational": float(grav_obj[k])}
                            for k in range(self.n_objects)],
@@ -299,6 +307,7 @@ class CollisionMPM:
         out["time"] = np.float64(self.state.time)
         out["step"] = np.int64(self.state.step)
         out["max_speed"] = np.float64(self.max_speed)
+        out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -329,4 +338,7 @@ class CollisionMPM:
         # Checkpoints from before max_speed was stored: recomputed (may differ in the last bit).
         self.max_speed = (float(data["max_speed"]) if "max_speed" in data
                           else float(self.state.v.norm(dim=1).max()) if n else 0.0)
+        # The impulse gravity and the boundaries gave so far (zero for checkpoints without it).
+        self.external_impulse.load([float(v) for v in np.asarray(data["external_impulse"]).reshape(3)]
+                                   if "external_impulse" in data else None)
         self._fragment_cache = None  # labels belong to the state they were computed from

@@ -61,10 +61,16 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
         momentum_png, energy_png, summary = diagnostics_plots(sim, out_dir, prefix)
         conservation[str(sim)] = summary.to_json()
         sections.append((f"Momentum and energy: `{sim.name}`",
-                         table(("momentum drift (max, relative)", "energy rise (max, relative)",
-                                "start energy [J]", "largest momentum exchanged"),
-                               [[summary.momentum_drift, summary.energy_rise,
-                                 summary.energy_start, summary.exchanged_momentum]])
+                         table(("momentum drift (max, relative)",
+                                "momentum balance p − p(0) − J (max, relative)",
+                                "energy rise (max, relative)", "start energy [J]",
+                                "largest momentum exchanged"),
+                               [[summary.momentum_drift, summary.momentum_balance,
+                                 summary.energy_rise, summary.energy_start,
+                                 summary.exchanged_momentum]])
+                         + "\nJ is the impulse gravity and the boundaries (walls, ground) gave "
+                         "the particles; where they act, the drift is physics and the balance is "
+                         "the conservation check.\n"
                          + f"\n![momentum]({momentum_png.name})\n\n![energy]({energy_png.name})\n"))
 
     metrics = {"title": title, "views": options.views, "resolution": list(options.resolution),
