@@ -4,6 +4,7 @@ used through its object API (Agg canvas, no pyplot global state)."""
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,7 +51,9 @@ class ConservationSummary:
     exchanged_momentum: float   # largest change of one object's momentum (shows the exchange)
 
     def to_json(self) -> dict:
-        return {name: float(getattr(self, name)) for name in self.__dataclass_fields__}
+        """The fields as JSON values (null where a number is not available, e.g. NaN)."""
+        values = {name: float(getattr(self, name)) for name in self.__dataclass_fields__}
+        return {name: value if math.isfinite(value) else None for name, value in values.items()}
 
 
 def conservation_summary(columns: dict[str, np.ndarray]) -> ConservationSummary:
@@ -106,12 +109,13 @@ def momentum_plot(columns: dict[str, np.ndarray], path: Path, title: str = "") -
     ax_p.set_ylabel("momentum [kg m/s]")
     ax_p.legend(fontsize=7, ncol=3)
     ax_p.grid(alpha=0.3)
-    ax_p.set_title(title or "momentum: objects exchange it, the total stays constant")
     total = np.stack([columns["px"], columns["py"], columns["pz"]], axis=1)
     drift = np.linalg.norm(total - total[0], axis=1) / max(summary.momentum_scale, 1e-30)
     balance = momentum_balance_residual(columns, summary.momentum_scale)
     external = balance is not None and float(np.max(np.abs(np.stack(
         [columns[f"impulse_{a}"] for a in "xyz"])))) > 0.0
+    ax_p.set_title(title or ("momentum: gravity and the boundaries change it by exactly their impulse J"
+                             if external else "momentum: objects exchange it, the total stays constant"))
     ax_d.semilogy(time, np.maximum(drift, 1e-12), color="tab:gray" if external else "black",
                   lw=1.5, label="|p(t) − p(0)| / Σ|p_k(0)|")
     if external:  # gravity / boundaries act: the drift is physics, the balance is the check

@@ -3,6 +3,7 @@ energy plots of every simulation, and a frame strip (reference frame + window, f
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -65,7 +66,9 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
                                 "momentum balance p − p(0) − J (max, relative)",
                                 "energy rise (max, relative)", "start energy [J]",
                                 "largest momentum exchanged"),
-                               [[summary.momentum_drift, summary.momentum_balance,
+                               [[summary.momentum_drift,
+                                 summary.momentum_balance if math.isfinite(summary.momentum_balance)
+                                 else "— (diagnostics.csv without impulse columns)",
                                  summary.energy_rise, summary.energy_start,
                                  summary.exchanged_momentum]])
                          + "\nJ is the impulse gravity and the boundaries (walls, ground) gave "
