@@ -46,8 +46,9 @@ class ExternalImpulse:
         self.blocks = boundary_blocks(geometry, wall_condition, ground_height, device)
         self.any_blocks = bool(self.blocks.any())
         self.local = torch.arange(BLOCK ** 3, device=device)
-        self.gravity_per_second = torch.tensor(gravity, dtype=torch.float64) * float(total_mass)
-        self.total = torch.zeros(3, dtype=torch.float64)
+        # kept on the solver's device: no host transfer per substep, only in state()
+        self.gravity_per_second = torch.tensor(gravity, dtype=torch.float64, device=device) * float(total_mass)
+        self.total = torch.zeros(3, dtype=torch.float64, device=device)
 
     def step(self, touched: torch.Tensor, grid: GridFields, dt: float,
              apply_boundaries: Callable[[], None]) -> None:
@@ -63,7 +64,7 @@ class ExternalImpulse:
         before = velocity.index_select(0, nodes).double()
         apply_boundaries()
         change = velocity.index_select(0, nodes).double() - before
-        self.total += (mass[:, None] * change).sum(0).cpu()
+        self.total += (mass[:, None] * change).sum(0)
 
     def _boundary_nodes(self, touched: torch.Tensor) -> torch.Tensor | None:
         """Storage indices of the nodes of the touched blocks that hold boundary nodes."""
@@ -75,8 +76,8 @@ class ExternalImpulse:
         return (first[:, None] + self.local[None, :]).reshape(-1)
 
     def state(self) -> list[float]:
-        return [float(v) for v in self.total]
+        return [float(v) for v in self.total.cpu()]
 
     def load(self, values: list[float] | None) -> None:
         self.total = torch.tensor(values if values is not None else [0.0, 0.0, 0.0],
-                                  dtype=torch.float64)
+                                  dtype=torch.float64, device=self.total.device)

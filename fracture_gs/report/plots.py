@@ -76,13 +76,21 @@ def conservation_summary(columns: dict[str, np.ndarray]) -> ConservationSummary:
                                exchanged_momentum=exchanged)
 
 
+def external_impulse(columns: dict[str, np.ndarray]) -> np.ndarray | None:
+    """(frames, 3) impulse of gravity and the boundaries since frame 0 (None when the
+    diagnostics have no ``impulse_*`` columns)."""
+    if not all(f"impulse_{a}" in columns for a in "xyz"):
+        return None
+    return np.stack([columns[f"impulse_{a}"] for a in "xyz"], axis=1)
+
+
 def momentum_balance_residual(columns: dict[str, np.ndarray], scale: float) -> np.ndarray | None:
     """Per frame |p(t) − p(0) − J(t)| / max(scale, max |J|), J the external impulse columns
     (None when the diagnostics have no ``impulse_*`` columns)."""
-    if not all(f"impulse_{a}" in columns for a in "xyz"):
+    impulse = external_impulse(columns)
+    if impulse is None:
         return None
     total = np.stack([columns["px"], columns["py"], columns["pz"]], axis=1)
-    impulse = np.stack([columns[f"impulse_{a}"] for a in "xyz"], axis=1)
     reference = max(scale, float(np.max(np.linalg.norm(impulse, axis=1))), 1e-30)
     return np.linalg.norm(total - total[0] - impulse, axis=1) / reference
 
@@ -112,8 +120,8 @@ def momentum_plot(columns: dict[str, np.ndarray], path: Path, title: str = "") -
     total = np.stack([columns["px"], columns["py"], columns["pz"]], axis=1)
     drift = np.linalg.norm(total - total[0], axis=1) / max(summary.momentum_scale, 1e-30)
     balance = momentum_balance_residual(columns, summary.momentum_scale)
-    external = balance is not None and float(np.max(np.abs(np.stack(
-        [columns[f"impulse_{a}"] for a in "xyz"])))) > 0.0
+    impulse = external_impulse(columns)
+    external = impulse is not None and bool(np.any(impulse != 0.0))
     ax_p.set_title(title or ("momentum: gravity and the boundaries change it by exactly their impulse J"
                              if external else "momentum: objects exchange it, the total stays constant"))
     ax_d.semilogy(time, np.maximum(drift, 1e-12), color="tab:gray" if external else "black",
