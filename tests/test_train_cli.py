@@ -53,6 +53,8 @@ def test_every_output_file_is_written_and_consistent(trained: Path) -> None:
     assert call.func.id == "Namespace"
     options = {k.arg: ast.literal_eval(k.value) for k in call.keywords}
     assert options["sh_degree"] == 3 and options["source_path"] == str(FIXTURE)
+    # the default preset's learning rates (raised over 3DGS's for the short schedule)
+    assert (options["feature_lr"], options["opacity_lr"], options["scaling_lr"]) == (1e-2, 5e-2, 1e-2)
     # cameras.json: 3DGS entries, test views first, then train
     cameras = json.loads((trained / "cameras.json").read_text())
     assert len(cameras) == 6 and {"id", "img_name", "width", "height", "position", "rotation",
@@ -261,6 +263,8 @@ def test_bad_inputs_give_one_line_and_leave_nothing(tmp_path: Path,
     _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, "--parts", parts, *TINY], out,
                         str(parts), "part 1 ('lid') contains no particle")
     _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, *TINY, "--nv", "-1"], out, "--nv")
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, *TINY, "--opacity_lr", "0"], out,
+                        "--opacity_lr", "must be > 0")
 
 
 def test_an_empty_mesh_names_the_threshold_and_what_to_try(tmp_path: Path,
@@ -286,3 +290,14 @@ def test_exit_status_and_message_of_the_script(tmp_path: Path) -> None:
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
         f"error: {tmp_path / 'nowhere'}: dataset folder not found"]
+
+
+def test_presets_set_the_learning_rates_and_flags_override_them() -> None:
+    from fracture_gs.cli.train import build_parser, config_from_args
+    parser = build_parser()
+    default = config_from_args(parser.parse_args(["-s", "data/x"]))
+    paper = config_from_args(parser.parse_args(["-s", "data/x", "--preset", "paper"]))
+    given = config_from_args(parser.parse_args(["-s", "data/x", "--preset", "paper", "--feature_lr", "0.02"]))
+    assert (default.feature_lr, default.opacity_lr, default.scaling_lr) == (1e-2, 5e-2, 1e-2)
+    assert (paper.feature_lr, paper.opacity_lr, paper.scaling_lr) == (2.5e-3, 2.5e-2, 5e-3)  # 3DGS
+    assert given.feature_lr == 0.02 and given.opacity_lr == 2.5e-2

@@ -15,10 +15,10 @@ from fracture_gs.data import DatasetError
 from fracture_gs.data.parts import PartSpecError
 from fracture_gs.gaussians import PlyFormatError
 from fracture_gs.recon.errors import ReconstructionError
-from fracture_gs.recon.pipeline import PRESETS, TrainConfig, train
+from fracture_gs.recon.pipeline import ITERATIONS_DEFAULT, PRESETS, TrainConfig, train
 
 PRESET_KEYS = ("resolution", "iterations", "sdf_res", "sdf_iters", "n_surface", "nv",
-               "particle_res", "n_interior")
+               "particle_res", "n_interior", "feature_lr", "opacity_lr", "scaling_lr")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="default: sized for a 2-core CPU; paper: the paper's sizes "
                              "(200k surface, 100k interior particles, full resolution)")
     parser.add_argument("--iterations", type=int, default=None,
-                        help="Gaussian fitting iterations (default 1500)")
+                        help=f"Gaussian fitting iterations (default {ITERATIONS_DEFAULT})")
     parser.add_argument("--sdf-res", type=int, default=None,
                         help="SDF grid cells along the longest side (default 128)")
     parser.add_argument("--sdf-iters", type=int, default=None,
@@ -56,9 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--parts", default=None,
                         help="part spec JSON (default: the dataset's parts.json, else one part)")
     parser.add_argument("--sh-degree", type=int, default=3, help="SH degree 0..3 (default 3)")
-    parser.add_argument("--max-offset", type=float, default=0.25,
+    parser.add_argument("--max-offset", type=float, default=1.0,
                         help="largest Gaussian/particle move from the mesh, in particle "
-                             "spacings (default 0.25; 0 = fixed)")
+                             "spacings (default 1: the Gaussians settle about one spacing "
+                             "inside, so their footprint ends at the silhouette; 0 = fixed)")
     parser.add_argument("--min-component", type=float, default=0.005,
                         help="drop mesh components with fewer faces than this fraction of the "
                              "largest (default 0.005)")
@@ -77,6 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
                              "0 = never)")
     parser.add_argument("--save_iterations", type=int, nargs="*", default=[],
                         help="extra iterations at which point_cloud/iteration_N is written")
+    for flag, what, ours, theirs in (("feature_lr", "SH colour (the higher degrees get 1/20)", 0.01, 0.0025),
+                                     ("opacity_lr", "opacity logit", 0.05, 0.025),
+                                     ("scaling_lr", "log-scale", 0.01, 0.005)):
+        parser.add_argument(f"--{flag}", type=float, default=None,
+                            help=f"Adam learning rate of the {what} (default {ours}; 3DGS and "
+                                 f"--preset paper {theirs})")
     parser.add_argument("--sdf-rays", type=int, default=1024,
                         help="rays per SDF refinement iteration (default 1024)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")

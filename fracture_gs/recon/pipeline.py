@@ -37,13 +37,19 @@ from fracture_gs.recon.particles import ParticleSet, sample_particles
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
 from fracture_gs.recon.timing import StageTimer
 
+ITERATIONS_DEFAULT = 3000
 PRESETS: dict[str, dict[str, Any]] = {
     # Sized so that one 400x400, 100-view object finishes in <= 15 minutes on a 2-core CPU.
-    "default": {"resolution": 1, "iterations": 1500, "sdf_res": 128, "sdf_iters": 300,
-                "n_surface": 40_000, "nv": 8, "particle_res": 48, "n_interior": None},
-    # The paper's sizes (App. A.2): 200k surface and 100k interior particles, full images.
+    # The Gaussian stage runs ~10x fewer iterations than 3DGS's 30k, so its colour, opacity and
+    # scale learning rates are raised (4x, 2x, 2x 3DGS's) to converge in that budget.
+    "default": {"resolution": 1, "iterations": ITERATIONS_DEFAULT, "sdf_res": 128, "sdf_iters": 300,
+                "n_surface": 40_000, "nv": 8, "particle_res": 48, "n_interior": None,
+                "feature_lr": 1e-2, "opacity_lr": 5e-2, "scaling_lr": 1e-2},
+    # The paper's sizes (App. A.2): 200k surface and 100k interior particles, full images,
+    # 3DGS's schedule and learning rates.
     "paper": {"resolution": 1, "iterations": 30_000, "sdf_res": 256, "sdf_iters": 20_000,
-              "n_surface": 200_000, "nv": 8, "particle_res": None, "n_interior": 100_000},
+              "n_surface": 200_000, "nv": 8, "particle_res": None, "n_interior": 100_000,
+              "feature_lr": 2.5e-3, "opacity_lr": 2.5e-2, "scaling_lr": 5e-3},
 }
 NO_MASKS_HINT = ("add a masks/ folder beside images/ (same file names, white = object), or "
                  "start from a trained 3DGS model with --from-ply <point_cloud.ply> --bbox "
@@ -58,7 +64,7 @@ class TrainConfig:
     model_path: str
     resolution: int = 1
     white_background: bool = False
-    iterations: int = 1500
+    iterations: int = ITERATIONS_DEFAULT
     sdf_res: int = 128
     sdf_iters: int = 300
     n_surface: int = 40_000
@@ -71,7 +77,7 @@ class TrainConfig:
     seed: int = 0
     preset: str = "default"
     min_component: float = 0.005
-    max_offset: float = 0.25
+    max_offset: float = 1.0
     from_ply: str | None = None
     from_sdf: str | None = None
     bbox: list[float] | None = None
@@ -79,6 +85,9 @@ class TrainConfig:
     checkpoint_every: int = 1000
     save_iterations: list[int] = field(default_factory=list)
     sdf_rays: int = 1024
+    feature_lr: float = 1e-2
+    opacity_lr: float = 5e-2
+    scaling_lr: float = 1e-2
     quiet: bool = False
 
     def cfg_args(self) -> dict[str, Any]:
@@ -172,7 +181,10 @@ def check_config(config: TrainConfig) -> None:
               ("--sh-degree", 0 <= config.sh_degree <= 3, "must be 0..3"),
               ("--max-offset", config.max_offset >= 0, "must be >= 0"),
               ("--min-component", 0 <= config.min_component <= 1, "must be in [0, 1]"),
-              ("-r", config.resolution == -1 or config.resolution >= 1, "must be >= 1 or -1")]
+              ("-r", config.resolution == -1 or config.resolution >= 1, "must be >= 1 or -1"),
+              ("--feature_lr", config.feature_lr > 0, "must be > 0"),
+              ("--opacity_lr", config.opacity_lr > 0, "must be > 0"),
+              ("--scaling_lr", config.scaling_lr > 0, "must be > 0")]
     for flag, ok, problem in checks:
         if not ok:
             raise ReconstructionError(f"{flag}: {getattr(config, _attribute(flag))} {problem}")
@@ -400,6 +412,8 @@ def _fit(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
     surface = particles.is_surface
     settings = FitSettings(iterations=config.iterations, sh_degree=config.sh_degree,
                            max_offset=config.max_offset, seed=config.seed,
+                           feature_lr=config.feature_lr, opacity_lr=config.opacity_lr,
+                           scaling_lr=config.scaling_lr,
                            sh_interval=max(1, min(1000, config.iterations // (2 * max(
                                config.sh_degree, 1)))))
     spatial_scale = inputs.train.scene_bounds()[1]
