@@ -15,7 +15,7 @@ from fracture_gs.data import DatasetError
 from fracture_gs.data.parts import PartSpecError
 from fracture_gs.gaussians import PlyFormatError
 from fracture_gs.recon.errors import ReconstructionError
-from fracture_gs.recon.pipeline import ITERATIONS_DEFAULT, PRESETS, TrainConfig, train
+from fracture_gs.recon.pipeline import PRESETS, TrainConfig, train
 
 PRESET_KEYS = ("resolution", "iterations", "sdf_res", "sdf_iters", "n_surface", "nv",
                "particle_res", "n_interior", "feature_lr", "opacity_lr", "scaling_lr")
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="default: sized for a 2-core CPU; paper: the paper's sizes "
                              "(200k surface, 100k interior particles, full resolution)")
     parser.add_argument("--iterations", type=int, default=None,
-                        help=f"Gaussian fitting iterations (default {ITERATIONS_DEFAULT})")
+                        help=f"Gaussian fitting iterations (default {PRESETS['default']['iterations']})")
     parser.add_argument("--sdf-res", type=int, default=None,
                         help="SDF grid cells along the longest side (default 128)")
     parser.add_argument("--sdf-iters", type=int, default=None,
@@ -78,12 +78,11 @@ def build_parser() -> argparse.ArgumentParser:
                              "0 = never)")
     parser.add_argument("--save_iterations", type=int, nargs="*", default=[],
                         help="extra iterations at which point_cloud/iteration_N is written")
-    for flag, what, ours, theirs in (("feature_lr", "SH colour (the higher degrees get 1/20)", 0.01, 0.0025),
-                                     ("opacity_lr", "opacity logit", 0.05, 0.025),
-                                     ("scaling_lr", "log-scale", 0.01, 0.005)):
+    for flag, what in (("feature_lr", "SH colour (the higher degrees get 1/20)"),
+                       ("opacity_lr", "opacity logit"), ("scaling_lr", "log-scale")):
         parser.add_argument(f"--{flag}", type=float, default=None,
-                            help=f"Adam learning rate of the {what} (default {ours}; 3DGS and "
-                                 f"--preset paper {theirs})")
+                            help=f"Adam learning rate of the {what} (default {PRESETS['default'][flag]}; "
+                                 f"3DGS and --preset paper {PRESETS['paper'][flag]})")
     parser.add_argument("--sdf-rays", type=int, default=1024,
                         help="rays per SDF refinement iteration (default 1024)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
