@@ -4,9 +4,10 @@
     python benchmarks/train_strip.py -s data/teapot -m output/teapot_a output/teapot_b \
         --labels "bound 0.25" "bound 1" --view 5 --out docs/train_teapot.png
 
-Each panel is the test view rendered from the model's latest point_cloud.ply (on the model's
+Each panel is the test view rendered from the model's latest point_cloud.ply (on the dataset's
 background colour), cropped to the object's box in the ground truth, labelled with the view's
-PSNR over the whole image; prints the PSNRs as JSON.
+PSNR over the whole image (``fracture_gs.report.plots.frame_strip`` writes the PNG); prints the
+PSNRs as JSON.
 """
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ import json
 import os
 import sys
 
-import cv2
+from pathlib import Path
+
 import numpy as np
 import torch
 
@@ -26,15 +28,13 @@ from fracture_gs.gaussians import read_ply  # noqa: E402
 from fracture_gs.metrics.image import psnr  # noqa: E402
 from fracture_gs.recon.gaussian_fit import render_model  # noqa: E402
 from fracture_gs.recon.model_io import latest_iteration, point_cloud_path  # noqa: E402
+from fracture_gs.report.plots import frame_strip  # noqa: E402
 
 
-def _panel(image: np.ndarray, box: tuple[int, int, int, int], zoom: int, text: str) -> np.ndarray:
-    """The crop ``box`` (top, bottom, left, right) of an (H, W, 3) float image, enlarged, labelled."""
+def _crop(image: torch.Tensor, box: tuple[int, int, int, int]) -> np.ndarray:
+    """The crop ``box`` (top, bottom, left, right) of an (H, W, 3) float image as uint8 RGB."""
     top, bottom, left, right = box
-    crop = np.repeat(np.repeat(image[top:bottom, left:right], zoom, 0), zoom, 1)
-    out = np.ascontiguousarray((crop * 255).round().astype(np.uint8))
-    cv2.putText(out, text, (6, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
+    return np.ascontiguousarray((image[top:bottom, left:right].numpy() * 255).round().astype(np.uint8))
 
 
 def main() -> None:
@@ -43,7 +43,7 @@ def main() -> None:
     parser.add_argument("-m", "--models", nargs="+", required=True)
     parser.add_argument("--labels", nargs="+", default=None)
     parser.add_argument("--view", type=int, default=0, help="test view index")
-    parser.add_argument("--zoom", type=int, default=2, help="pixel repeat of the crop")
+    parser.add_argument("--height", type=int, default=300, help="height of the panels in pixels")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     labels = args.labels or [os.path.basename(os.path.normpath(m)) for m in args.models]
@@ -57,17 +57,16 @@ def main() -> None:
     top, bottom = max(rows.min() - pad, 0), min(rows.max() + pad + 1, mask.shape[0])
     left, right = max(cols.min() - pad, 0), min(cols.max() + pad + 1, mask.shape[1])
     box = (top, bottom, left, right)
-    panels = [_panel(target.numpy(), box, args.zoom, "ground truth")]
-    scores = {}
+    panels, captions, scores = [_crop(target, box)], ["ground truth"], {}
     for model_path, label in zip(args.models, labels):
         model = read_ply(point_cloud_path(model_path, latest_iteration(model_path)), isotropic=True)
         with torch.no_grad():
             rgb = render_model(model, camera, torch.tensor(test.background, dtype=torch.float32))["rgb"].clamp(0, 1)
         value = float(psnr(rgb, target))
         scores[label] = round(value, 2)
-        panels.append(_panel(rgb.numpy(), box, args.zoom, f"{label}: {value:.2f} dB"))
-    strip = np.concatenate(panels, axis=1)
-    cv2.imwrite(args.out, cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
+        panels.append(_crop(rgb, box))
+        captions.append(f"{label}: {value:.2f} dB")
+    frame_strip([(f"test view {args.view}", panels, captions)], Path(args.out), max_height=args.height)
     print(json.dumps({"view": args.view, "psnr_db": scores, "out": args.out}, indent=2))
 
 
