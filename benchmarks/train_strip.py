@@ -23,7 +23,7 @@ import torch
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from fracture_gs.data import load_dataset  # noqa: E402
+from fracture_gs.data import DatasetError, load_dataset  # noqa: E402
 from fracture_gs.gaussians import read_ply  # noqa: E402
 from fracture_gs.metrics.image import psnr  # noqa: E402
 from fracture_gs.recon.gaussian_fit import render_model  # noqa: E402
@@ -49,7 +49,16 @@ def main() -> None:
     labels = args.labels or [os.path.basename(os.path.normpath(m)) for m in args.models]
     if len(labels) != len(args.models):
         parser.error("--labels: give one label per model")
-    test = load_dataset(args.source_path, "test", 1, False)
+    try:
+        test = load_dataset(args.source_path, "test", 1, False)
+    except DatasetError as exc:
+        parser.error(str(exc))
+    iterations = [latest_iteration(m) for m in args.models]
+    for model_path, iteration in zip(args.models, iterations):
+        if iteration is None:
+            parser.error(f"{model_path}: no point_cloud/iteration_N (not a train.py model folder)")
+    if not 0 <= args.view < len(test):
+        parser.error(f"--view: {args.view} is not a test view (0..{len(test) - 1})")
     camera, target = test.cameras[args.view], test.images[args.view]
     mask = test.masks[args.view].numpy() > 0.5 if test.masks is not None else np.ones(target.shape[:2], bool)
     rows, cols = np.nonzero(mask)
@@ -58,8 +67,8 @@ def main() -> None:
     left, right = max(cols.min() - pad, 0), min(cols.max() + pad + 1, mask.shape[1])
     box = (top, bottom, left, right)
     panels, captions, scores = [_crop(target, box)], ["ground truth"], {}
-    for model_path, label in zip(args.models, labels):
-        model = read_ply(point_cloud_path(model_path, latest_iteration(model_path)), isotropic=True)
+    for model_path, iteration, label in zip(args.models, iterations, labels):
+        model = read_ply(point_cloud_path(model_path, iteration), isotropic=True)
         with torch.no_grad():
             rgb = render_model(model, camera, torch.tensor(test.background, dtype=torch.float32))["rgb"].clamp(0, 1)
         value = float(psnr(rgb, target))
