@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 import trimesh
+from scipy import ndimage
 
 from fracture_gs.data.dataset import Dataset
 from fracture_gs.metrics.image import psnr, ssim
@@ -302,3 +303,43 @@ def test_carving_removes_the_free_space_that_depth_maps_see_and_nothing_else() -
     flipped = (carved.numpy() > 0) & (cube < 0)
     assert flipped.any() and np.all(radius[flipped] < 0.3 + 3 * grid.voxel)
     assert np.all(nodes[..., 2][flipped] > 0.2 - 3 * grid.voxel)
+
+
+def _textured_plane_view(eye: np.ndarray, size: int, depth_z: float, half: float
+                         ) -> tuple[Camera, np.ndarray, np.ndarray]:
+    """A camera at ``eye`` looking down -z at the square |x|, |y| < half of the plane z = depth_z,
+    which carries a fixed random texture: its grey image and the square's mask."""
+    camera = Camera.look_at(eye, (0, 0, depth_z), (0, 1, 0), fov_x_rad=0.6, width=size, height=size)
+    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    local = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
+                      np.ones_like(column)], -1)
+    camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
+    direction = local @ camera_to_world[:3, :3].T
+    origin = camera_to_world[:3, 3]
+    hit = origin + direction * ((depth_z - origin[2]) / direction[..., 2])[..., None]
+    texture = np.random.default_rng(0).random((64, 64)).astype(np.float32)
+    cell = np.clip(((hit[..., :2] + 1.0) * 32).astype(int), 0, 63)
+    mask = np.all(np.abs(hit[..., :2]) < half, axis=-1)
+    return camera, np.where(mask, texture[cell[..., 1], cell[..., 0]], 0.0).astype(np.float32), mask
+
+
+def test_stereo_depth_only_from_windows_wholly_on_the_object() -> None:
+    """The plane sweep finds the depth of a textured square, but gives none where its NCC window
+    reaches past the square's outline: there the window also compares background, and on a part
+    seen edge-on such a depth lies behind the part and would carve it."""
+    from fracture_gs.recon.carving import CarveSettings, sweep_depth
+    settings = CarveSettings(window=7, ncc_threshold=0.8)
+    views = [_textured_plane_view(np.array([dx, dy, 3.0]), 64, 0.0, 0.5)
+             for dx, dy in ((0.0, 0.0), (0.4, 0.0), (-0.4, 0.0), (0.0, 0.4))]
+    cameras = [view[0] for view in views]
+    gray = np.stack([view[1] for view in views])
+    mask = views[0][2]
+    planes = np.linspace(2.5, 3.5, 41)
+    depth = sweep_depth(0, [1, 2, 3], gray, cameras, mask, planes, settings)
+    distance_to_outline = ndimage.distance_transform_cdt(mask, metric="chessboard")
+    deep = distance_to_outline > settings.window // 2
+    rim = mask & ~deep
+    assert np.isfinite(depth[deep]).mean() > 0.75
+    assert np.nanpercentile(np.abs(depth[deep] - 3.0), 95) <= 2 * (planes[1] - planes[0])
+    assert rim.any() and not np.isfinite(depth[rim]).any()
+    assert not np.isfinite(depth[~mask]).any()

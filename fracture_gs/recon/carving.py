@@ -7,7 +7,9 @@ reference view (``reference_stride``-th view) a plane sweep finds the depth of e
 pixel: the neighbour views are warped onto fronto-parallel planes by homographies (OpenCV)
 and compared with the reference by normalised cross-correlation over small windows (the best
 2 of the neighbours count, which tolerates occlusion). A depth is kept where the correlation
-is high (``ncc_threshold``) and where it is geometrically consistent (its 3D point lands
+is high (``ncc_threshold``), where the correlation window lies wholly inside the mask (a window
+across the outline of a part seen edge-on matches the surface behind the part) and where it is
+geometrically consistent (its 3D point lands
 within 1.5 voxels of the depth that at least ``consistent_views`` other reference views
 measured). A grid node inside the hull is carved when at least ``votes`` reference views see
 it more than ``margin_voxels`` in front of their measured surface and at most half as many
@@ -34,15 +36,15 @@ LUMINANCE = np.array([0.299, 0.587, 0.114], dtype=np.float32)
 
 @dataclass
 class CarveSettings:
-    reference_stride: int = 2       # every n-th training view gets a depth map
+    reference_stride: int = 1       # every n-th training view gets a depth map
     downscale: int = 2              # image downscale for the sweep
     neighbours: int = 3             # views compared with each reference
     window: int = 7                 # NCC window (pixels)
-    ncc_threshold: float = 0.9
+    ncc_threshold: float = 0.8
     plane_spacing: float = 1.5      # sweep plane spacing, in voxels
     consistent_views: int = 2       # other depth maps that must agree with a depth
-    votes: int = 2                  # views that must see a node as free space
-    margin_voxels: float = 2.0      # how far in front of a measured surface counts as free
+    votes: int = 1                  # views that must see a node as free space
+    margin_voxels: float = 1.0      # how far in front of a measured surface counts as free
 
 
 @dataclass
@@ -96,7 +98,12 @@ def sweep_depth(reference: int, neighbours: list[int], gray: np.ndarray,
     keep = min(2, len(neighbours))
     best_of = np.sort(scores, axis=0)[-keep:].mean(axis=0)
     depth = planes[best_of.argmax(axis=0)]
-    confident = (best_of.max(axis=0) > settings.ncc_threshold) & mask & (ref_var > 1e-4)
+    # Only windows that lie wholly on the object: a window across its outline compares
+    # background too, and on a part seen edge-on (a thin table top) it matches the surface
+    # behind the part, a depth that would carve the part.
+    inside = cv2.erode(mask.astype(np.uint8), np.ones((window, window), np.uint8),
+                       borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+    confident = (best_of.max(axis=0) > settings.ncc_threshold) & inside & (ref_var > 1e-4)
     return np.where(confident, depth, np.nan).astype(np.float32)
 
 
