@@ -55,7 +55,7 @@ def main() -> None:
         try:
             grid, sdf, hull = load_sdf(os.path.join(model, "sdf.npz"))
         except ReconstructionError as error:
-            _fail(str(error).replace("--from-sdf: ", ""))
+            _fail(str(error))
         mesh_path = os.path.join(model, "mesh.ply")
         if not os.path.isfile(mesh_path):
             _fail(f"{mesh_path}: file not found")

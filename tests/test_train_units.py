@@ -251,18 +251,24 @@ def test_ssim_and_psnr() -> None:
     assert z.grad is not None and torch.isfinite(z.grad).all()
 
 
+def _pixel_rays(camera: Camera, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """World origin (3,) and directions (size, size, 3) of the rays through the pixel centres of a
+    size x size ``camera``, scaled to camera depth 1 (a point at depth d is origin + d * direction)."""
+    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
+    local = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
+                      np.ones_like(column)], -1)
+    camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
+    return camera_to_world[:3, 3], local @ camera_to_world[:3, :3].T
+
+
 def _pit_depth_map(view: int, eye: np.ndarray, size: int, inside) -> "DepthMap":
     """Depth map (camera z) of the first point along each pixel's ray where ``inside`` holds,
     found by marching (what a perfect stereo matcher would measure)."""
     from fracture_gs.recon.carving import DepthMap
     camera = Camera.look_at(eye, (0, 0, 0), (0, 1, 0), fov_x_rad=0.9, width=size, height=size)
-    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
-    local = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
-                      np.ones_like(column)], -1).reshape(-1, 3)
-    camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
+    origin, direction = _pixel_rays(camera, size)
     steps = np.linspace(2.0, 4.0, 401)           # the cube lies between depths 2.4 and 3.6
-    points = (steps[None, :, None] * local[:, None, :]) @ camera_to_world[:3, :3].T \
-        + camera_to_world[:3, 3]
+    points = steps[None, :, None] * direction.reshape(-1, 1, 3) + origin
     hit = inside(points)
     first = np.where(hit.any(axis=1), steps[hit.argmax(axis=1)], np.nan)
     return DepthMap(view, camera, first.reshape(size, size).astype(np.float32))
@@ -310,12 +316,7 @@ def _textured_plane_view(eye: np.ndarray, size: int, depth_z: float, half: float
     """A camera at ``eye`` looking down -z at the square |x|, |y| < half of the plane z = depth_z,
     which carries a fixed random texture: its grey image and the square's mask."""
     camera = Camera.look_at(eye, (0, 0, depth_z), (0, 1, 0), fov_x_rad=0.6, width=size, height=size)
-    column, row = np.meshgrid(np.arange(size) + 0.5, np.arange(size) + 0.5)
-    local = np.stack([(column - camera.cx) / camera.fx, (row - camera.cy) / camera.fy,
-                      np.ones_like(column)], -1)
-    camera_to_world = np.linalg.inv(camera.world_to_camera.double().numpy())
-    direction = local @ camera_to_world[:3, :3].T
-    origin = camera_to_world[:3, 3]
+    origin, direction = _pixel_rays(camera, size)
     hit = origin + direction * ((depth_z - origin[2]) / direction[..., 2])[..., None]
     texture = np.random.default_rng(0).random((64, 64)).astype(np.float32)
     cell = np.clip(((hit[..., :2] + 1.0) * 32).astype(int), 0, 63)

@@ -153,18 +153,22 @@ def read_inputs(config: TrainConfig) -> Inputs:
         checkpoint = load_checkpoint(config.start_checkpoint)
     geometry = None
     if config.from_sdf is not None:
-        geometry = load_sdf(config.from_sdf)
+        try:
+            geometry = load_sdf(config.from_sdf)
+        except ReconstructionError as error:
+            raise ReconstructionError(f"--from-sdf: {error}") from None
     return Inputs(train, test, parts, parts_source, imported, checkpoint, geometry)
 
 
 def load_sdf(path: str) -> tuple[VoxelGrid, torch.Tensor, torch.Tensor]:
-    """Grid, SDF and hull SDF of an ``sdf.npz`` from an earlier run (``--from-sdf``)."""
+    """Grid, SDF and hull SDF of an ``sdf.npz`` from an earlier run (``--from-sdf``); a missing or
+    unreadable file is a ReconstructionError naming it."""
     if not os.path.isfile(path):
-        raise ReconstructionError(f"--from-sdf: {path}: file not found")
+        raise ReconstructionError(f"{path}: file not found")
     try:
         sdf, hull_sdf, origin, voxel = model_io.read_sdf(path)
     except ValueError as error:
-        raise ReconstructionError(f"--from-sdf: {path}: {error}") from None
+        raise ReconstructionError(f"{path}: {error}") from None
     grid = VoxelGrid(origin, voxel, tuple(int(n) for n in sdf.shape))
     return grid, torch.from_numpy(sdf), torch.from_numpy(hull_sdf)
 
