@@ -24,6 +24,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--step", type=float, default=0.002, help="(r, z) cell size, model units")
     args = parser.parse_args(argv)
+    if not 0.0 < args.step <= 0.05:
+        parser.error(f"--step must be in (0, 0.05] (model units; the wall is 0.08 thick), got {args.step}")
     mid = shapes.bowl_mid_curve()
     top = float(mid[-1, 1]) + 2 * shapes.BOWL_HALF_THICKNESS
     r = np.arange(0.5 * args.step, float(mid[-1, 0]) + 2 * shapes.BOWL_HALF_THICKNESS, args.step)
