@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     ring = 2.0 * np.pi * rr * args.step ** 2      # volume of the revolved (r, z) cell
     # The recess: empty cells inside the foot ring (r < its inner radius) below the wall's mid
     # curve (the mid curve rises monotonically with r).
-    foot_inner = 0.40 - 0.04
+    foot_inner = shapes.BOWL_FOOT_CENTER[0] - shapes.BOWL_FOOT_HALF[0]
     below_wall = zz < np.interp(rr, mid[:, 0], mid[:, 1])
     recess = ~solid & below_wall & (rr < foot_inner)
     bowl = float((ring * solid).sum())

@@ -109,6 +109,8 @@ def evaluate_on_grid(grid: Grid, sdf: SdfFunction, slab: int = 16) -> np.ndarray
 # ----------------------------------------------------------------------------- bowl
 BOWL_RADIUS, BOWL_DEPTH, BOWL_FLOOR, BOWL_HALF_THICKNESS = 1.0, 0.6, 0.12, 0.04
 BOWL_RIM_ANGLE = 0.47 * np.pi
+# Foot ring: a rounded box in (r, z) of this centre and half size, edges rounded by this radius.
+BOWL_FOOT_CENTER, BOWL_FOOT_HALF, BOWL_FOOT_ROUNDING = (0.40, 0.06), (0.04, 0.06), 0.015
 BOWL_PARTS = single_part_spec("bowl")
 
 
@@ -123,9 +125,9 @@ def bowl_profile_sdf(rz: np.ndarray) -> np.ndarray:
     """2D signed distance of the bowl's cross-section: a wall of constant thickness around the
     mid curve (rounded rim) united with a foot ring."""
     wall = polyline_distance_2d(rz, bowl_mid_curve()) - BOWL_HALF_THICKNESS
-    foot_center = np.array([0.40, 0.06])
-    q = np.abs(rz - foot_center) - np.array([0.04 - 0.015, 0.06 - 0.015])
-    foot = np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0) - 0.015
+    q = np.abs(rz - np.array(BOWL_FOOT_CENTER)) - (np.array(BOWL_FOOT_HALF) - BOWL_FOOT_ROUNDING)
+    foot = (np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+            - BOWL_FOOT_ROUNDING)
     return np.minimum(wall, foot)
 
 
