@@ -89,10 +89,10 @@ def compiled_partition(device: str, geometry: GridGeometry, p: dict, dt: float, 
     gradient = ops.fragment_reference(bins, on["x"], on["grid_id"], geometry, 1e-12, split_gradient, fields,
                                       backend="cpp")
     after_reference = cast(fields, torch.float32)
-    split_particle, split_keys = ops.fragment_partition(bins, *(on[k] for k in P2G_KEYS), on["grid_id"], geometry,
-                                                        dt, gradient, split_gradient, fields, backend="cpp")
+    split_particle, split_keys, side_mask = ops.fragment_partition(
+        bins, *(on[k] for k in P2G_KEYS), on["grid_id"], geometry, dt, gradient, split_gradient, fields, backend="cpp")
     return (bins, after_p2g, gradient.cpu(), after_reference, cast(fields, torch.float32), split_particle.cpu(),
-            split_keys.cpu())
+            split_keys.cpu(), side_mask.cpu())
 
 
 def touched_mask(bins, geometry: GridGeometry) -> torch.Tensor:
@@ -107,7 +107,7 @@ def touched_mask(bins, geometry: GridGeometry) -> torch.Tensor:
 def test_fragment_kernels_match_reference(seed, device):
     geometry, p = cracked_particles(seed)
     K, dt, split_gradient = geometry.n_grids, 1e-4, 0.25 / geometry.dx
-    bins, p2g_fields, gradient, ref_fields, parted, split_particle, split_keys = compiled_partition(
+    bins, p2g_fields, gradient, ref_fields, parted, split_particle, split_keys, side_mask = compiled_partition(
         device, geometry, p, dt, split_gradient)
     touched = touched_mask(bins, geometry)
 
@@ -134,11 +134,15 @@ def test_fragment_kernels_match_reference(seed, device):
 
     # 3. Fields A and B at split nodes, from the same gradients and references.
     twin_parted = cast(ref_fields, torch.float64)
-    twin_split, twin_keys_split = reference.fragment_partition(
+    twin_split, twin_keys_split, twin_side_mask = reference.fragment_partition(
         *(p[k].double() for k in P2G_KEYS), p["grid_id"], geometry, dt, gradient.double(), split_gradient,
         twin_parted)
     assert torch.equal(split_particle, twin_split)
     assert torch.equal(split_keys, twin_keys_split)
+    # Sides per stencil node (the sign of ∇D_p · ∇D_ref in float32 vs float64 may flip a near-tie).
+    assert int((side_mask != 0).sum()) > 0, "some particles must lie on side B"
+    assert float((side_mask == twin_side_mask).double().mean()) > 0.999
+    assert int((side_mask[split_particle == 0] != 0).sum()) == 0
     assert 0 < int(split_particle.sum()) < len(split_particle)
     split_nodes = reference._split_nodes(ref_fields.reference[:K], split_gradient).view(K, -1)
     both = torch.cat([split_nodes, split_nodes])
@@ -166,6 +170,13 @@ def test_fragment_kernels_match_reference(seed, device):
     velocity_scale = float(parted.velocity.abs().max())
     assert float((compiled[1].cpu() - twin_out[1]).abs().max()) <= REL_TOL * velocity_scale
     assert float((compiled[2].cpu() - twin_out[2]).abs().max()) <= REL_TOL * velocity_scale / geometry.dx
+    # The same with the partition's side mask (the solver's path): sides read from the mask.
+    masked = FragmentFields(*(t.to(device) for t in frag.as_list()), split_gradient, side_mask.to(device))
+    compiled_masked = ops.g2p(*(t.to(device) for t in state), table.to(device),
+                              cast(parted, torch.float32, torch.device(device)), geometry, dt, backend="cpp",
+                              fragments=masked)
+    assert float((compiled_masked[1].cpu() - twin_out[1]).abs().max()) <= REL_TOL * velocity_scale
+    assert float((compiled_masked[2].cpu() - twin_out[2]).abs().max()) <= REL_TOL * velocity_scale / geometry.dx
     plain = ops.g2p(*state, table, parted, geometry, dt, backend="reference")
     assert float((plain[1] - twin_out[1]).abs().max()) > 1e-3 * velocity_scale, "split nodes must change G2P"
 

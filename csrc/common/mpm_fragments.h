@@ -36,7 +36,12 @@ struct FragmentView {
   const float* damage_gradient;    // (N, 3) grad D_p
   const int64_t* reference;        // (K * nodes) reference key per node, 0 = none
   const uint8_t* split_particle;   // (N) 1 if the particle's stencil reaches a split node
+  const int32_t* side_mask;        // (N) bit 9a+3b+c set where the particle is on side B at its stencil
+                                   // node (a, b, c), as the partition found; nullptr: from the references
 };
+
+// Bit of stencil node (a, b, c) in a side mask.
+HOST_DEVICE inline uint32_t side_bit(int a, int b, int c) { return 1u << (9 * a + 3 * b + c); }
 
 // Reference key of a particle with damage gradient g: the high word orders by |g|^2 (the bits of a
 // non-negative float order like its value), the low word breaks ties by the particle index.
@@ -53,11 +58,14 @@ HOST_DEVICE inline bool key_is_split(int64_t key, uint32_t split_bits) {
 
 HOST_DEVICE inline long long key_particle(int64_t key) { return (long long)(uint32_t)((uint64_t)key & 0xffffffffu); }
 
+// True if damage gradients gq and gr point to opposite sides (gq . gr < 0).
+HOST_DEVICE inline bool sides_differ(const float gq[3], const float gr[3]) {
+  return (gq[0] * gr[0] + gq[1] * gr[1] + gq[2] * gr[2]) < 0.f;
+}
+
 // Field offset (0: A, 1: B) of particle q at a split node with reference particle r.
 HOST_DEVICE inline int fragment_side(const float* damage_gradient, long long q, long long r) {
-  const float* gq = damage_gradient + 3 * q;
-  const float* gr = damage_gradient + 3 * r;
-  return (gq[0] * gr[0] + gq[1] * gr[1] + gq[2] * gr[2]) < 0.f ? 1 : 0;
+  return sides_differ(damage_gradient + 3 * q, damage_gradient + 3 * r) ? 1 : 0;
 }
 
 // Grid (0 .. 2K-1) that particle q of grid g uses at node `node` (index within one grid).

@@ -61,7 +61,8 @@ __global__ void split_nodes_kernel(const int32_t* touched, int n_touched, MPMGeo
 // One thread block per cell of the colour, one thread per node of the cell's 6x6x6 tile: a split
 // node sums the cell's particles into the field of their side (A or B).
 __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
-                                       FragmentView frag, GridArrays grid, uint8_t* split_particle) {
+                                       FragmentView frag, GridArrays grid, uint8_t* split_particle,
+                                       int32_t* side_mask) {
   const GridShape s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
@@ -85,6 +86,7 @@ __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleA
     if (a < 0 || a > 2 || b < 0 || b > 2 || c < 0 || c > 2) continue;
     split_particle[q] = 1;  // every writer stores the same value
     const int side = fragment_side(frag.damage_gradient, q, ref);
+    if (side) atomicOr(reinterpret_cast<unsigned int*>(side_mask + q), side_bit(a, b, c));  // integer OR: order-free
     const float m = p.mass[q];
     const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
     float A[9];
@@ -133,13 +135,14 @@ void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMG
 }
 
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, void* stream) {
+                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                       void* stream) {
   static_assert(kTileNodes <= kThreads, "one thread per tile node");
   for (int color = 0; color < 8; ++color) {
     const int begin = bins.color_start[color], count = bins.color_start[color + 1] - begin;
     if (count > 0)
       partition_color_kernel<<<count, kThreads, 0, as_stream(stream)>>>(bins, begin, p, geo, dt, frag, grid,
-                                                                         split_particle);
+                                                                         split_particle, side_mask);
   }
 }
 

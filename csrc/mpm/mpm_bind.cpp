@@ -91,7 +91,8 @@ uint32_t split_bits_of(double split_gradient) {
 
 FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo, double split_gradient,
                            const Tensor& like) {
-  TORCH_CHECK(f.size() == 3, "fragments must hold (damage_gradient, reference, split_particle)");
+  TORCH_CHECK(f.size() == 3 || f.size() == 4,
+              "fragments must hold (damage_gradient, reference, split_particle[, side_mask])");
   check_tensor(f[0], "damage_gradient", torch::kFloat32, like);
   check_tensor(f[1], "reference", torch::kInt64, like);
   check_tensor(f[2], "split_particle", torch::kUInt8, like);
@@ -103,6 +104,12 @@ FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo,
   v.damage_gradient = f[0].data_ptr<float>();
   v.reference = f[1].data_ptr<int64_t>();
   v.split_particle = f[2].data_ptr<uint8_t>();
+  v.side_mask = nullptr;
+  if (f.size() == 4) {
+    check_tensor(f[3], "side_mask", torch::kInt32, like);
+    TORCH_CHECK(f[3].numel() == f[2].numel(), "side_mask and split_particle disagree on N");
+    v.side_mask = f[3].data_ptr<int32_t>();
+  }
   return v;
 }
 
@@ -146,7 +153,8 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
 
 // Fragments, step 3: fields A and B at the split nodes. The grid tensors hold 2K grids (A: 0..K-1,
 // B: K..2K-1; B zero on entry). Returns (split_particle (N) uint8, split_keys (S) int32: the
-// (grid, block) keys of the K grids that hold a split node, ascending).
+// (grid, block) keys of the K grids that hold a split node, ascending, side_mask (N) int32: bit
+// 9a+3b+c set where the particle is on side B at its stencil node (a, b, c)).
 std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v,
                                        const Tensor& C, const Tensor& stress, const Tensor& mass,
                                        const Tensor& rest_volume, const Tensor& grid_id,
@@ -167,6 +175,7 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
   GridArrays grid = grid_arrays(both, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
   Tensor split_particle = torch::zeros({n}, x.options().dtype(torch::kUInt8));
+  Tensor side_mask = torch::zeros({n}, x.options().dtype(torch::kInt32));
   Tensor split_block = torch::zeros({(int64_t)geo.n_grids * geo.shape.blocks()}, x.options().dtype(torch::kUInt8));
   const FragmentView frag = fragment_view({damage_gradient, grid_reference, split_particle}, geo, split_gradient, x);
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
@@ -175,18 +184,20 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
   const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
     fragment_split_nodes_cpu(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>());
-    fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>());
+    fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
+                     side_mask.data_ptr<int32_t>());
   } else {
 #ifdef FGS_WITH_CUDA
     fragment_split_nodes_cuda(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>(),
                               current_cuda_stream());
-    fragment_p2g_cuda(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(), current_cuda_stream());
+    fragment_p2g_cuda(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
+                      side_mask.data_ptr<int32_t>(), current_cuda_stream());
 #else
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
   }
   Tensor split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
-  return {split_particle, split_keys};
+  return {split_particle, split_keys, side_mask};
 }
 
 // Zeroes every field of the given (grid, block) keys of the 2K-grid tensors (field B after a substep).
@@ -373,7 +384,7 @@ std::tuple<int64_t, int64_t, double> g2p(
               kMatFields, ")");
   FragmentView frag{};
   const FragmentView* frag_ptr = nullptr;
-  if (fragments) {  // (damage_gradient, reference, split_particle): the grids hold fields A and B
+  if (fragments) {  // (damage_gradient, reference, split_particle[, side_mask]): the grids hold fields A and B
     frag = fragment_view(*fragments, geo, split_gradient, x);
     frag_ptr = &frag;
     const MPMGeometry both = make_geometry(lower, dx, blocks, 2 * n_grids);

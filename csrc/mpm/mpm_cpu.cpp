@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "mpm/constitutive_batch.h"
+#include "mpm/cpu_vector.h"
 #include "mpm/mpm_kernels.h"
 
 namespace fgs {
@@ -218,8 +219,6 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
 // (16 KB) stays in L1 and is added to the grid fields once per cell. The last lane sums m D
 // (damage, csrc/common/mpm_fragments.h) for the fragment partition; it is zero without it. Cells next to a contact
 // block also fill a second window of 4-float records with the mass gradient.
-using Record = float __attribute__((vector_size(32)));  // GCC vector: AVX, or two SSE halves
-using Lane4 = float __attribute__((vector_size(16)));
 constexpr int kWindow = 2 * kBlock;                        // window nodes per axis
 constexpr int kWindowNodes = kWindow * kWindow * kWindow;
 
@@ -446,16 +445,41 @@ inline bool finite_sum9(const float a[9]) {
   return s == 0.f;
 }
 
+// Velocity of a node of particle q's own object grid (no fragments, or side A everywhere).
+struct ObjectNodeVelocity {
+  const float* velocity;  // the object's grid
+  const float* operator()(long long node, uint32_t) const { return velocity + 3 * node; }
+};
+
+// Velocity of a node for a particle with fragments, from the side mask of the partition: field B
+// (the grid K later) at the stencil nodes whose bit is set, the object's grid elsewhere.
+struct MaskedNodeVelocity {
+  const float* velocity;  // the object's grid (field A)
+  long long field_b;      // floats from a node of field A to the same node of field B
+  uint32_t mask;
+  const float* operator()(long long node, uint32_t bit) const {
+    return velocity + 3 * node + ((mask & bit) ? field_b : 0);
+  }
+};
+
+// Velocity of a node for a particle with fragments, without a side mask: the side from the
+// reference key of the node (FragmentNodeVelocity, csrc/common/mpm_fragments.h).
+struct ReferenceNodeVelocity {
+  FragmentNodeVelocity by_reference;
+  const float* operator()(long long node, uint32_t) const { return by_reference(node); }
+};
+
 // g2p_gather (csrc/common/mpm_transfer.h) with the node velocities as 4-wide vectors: per node
 // two vector multiply-adds (sums along z), per (x, y) column four, instead of twelve scalar
-// ones per node. Same outputs; tested against the same torch twin.
+// ones per node. node_velocity(node index within one grid, side_bit of the stencil node) gives
+// the 3 floats to read: the object's grid, or with fragments the field (A or B) of q's side. Same outputs as the scalar gathers; tested against the same torch twin.
+template <class NodeVelocity>
 bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                    const float* grid_velocity, const G2POutputs& out, float F_trial[9]) {
+                    const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   AxisWeights aw[3];
   stencil_weights(in.x + 3 * q, geo, aw);
-  const float* velocity = grid_velocity + 3 * (long long)in.grid_id[q] * s.nodes();
   int oz[3];
   float wz_pz[3];
   for (int c = 0; c < 3; ++c) {
@@ -472,8 +496,8 @@ bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, fl
       Lane4 column = {0.f, 0.f, 0.f, 0.f}, column_z = column;
       for (int c = 0; c < 3; ++c) {
         Lane4 v;  // lanes 0-2: the node velocity (lane 3 reads the next node's x and is unused;
-                  // stencils never reach the grid's last node, so the read stays in bounds)
-        __builtin_memcpy(&v, velocity + 3 * (oxy + oz[c]), sizeof(v));
+                  // stencils never reach a grid's last node, so the read stays in bounds)
+        __builtin_memcpy(&v, node_velocity((long long)(oxy + oz[c]), side_bit(a, b, c)), sizeof(v));
         column += aw[2].w[c] * v;
         column_z += wz_pz[c] * v;
       }
@@ -515,8 +539,19 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
     for (long long q = 0; q < n; ++q) {
       float F_trial[9];
       const bool split = frag != nullptr && frag->split_particle[q] != 0;
-      clamped += (split ? g2p_gather_fragments(q, in, geo, dt, grid_velocity, *frag, out, F_trial)
-                        : g2p_gather_cpu(q, in, geo, dt, grid_velocity, out, F_trial)) ? 1 : 0;
+      const long long nodes = geo.shape.nodes();
+      const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[q] * nodes;
+      const uint32_t mask = split && frag->side_mask != nullptr ? (uint32_t)frag->side_mask[q] : 0u;
+      bool was_clamped;
+      if (split && frag->side_mask == nullptr)
+        was_clamped = g2p_gather_cpu(
+            q, in, geo, dt, ReferenceNodeVelocity{{grid_velocity, frag, in.grid_id[q], q, nodes}}, out, F_trial);
+      else if (mask != 0)  // side B somewhere in the stencil
+        was_clamped = g2p_gather_cpu(q, in, geo, dt, MaskedNodeVelocity{own_grid, 3 * frag->n_fields * nodes, mask},
+                                     out, F_trial);
+      else  // no fragments, or side A at every split node it reaches: the object's own grid
+        was_clamped = g2p_gather_cpu(q, in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
+      clamped += was_clamped ? 1 : 0;
       const float* xq = out.x + 3 * q;
       const float* vq = out.v + 3 * q;
       // x * 0 is NaN exactly when x is not finite; a tree of sums keeps the chain short.

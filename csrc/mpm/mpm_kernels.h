@@ -87,9 +87,10 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
 void fragment_split_nodes_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                               const FragmentView& frag, GridArrays grid, uint8_t* split_block);
 // Sums fields A and B at the split nodes from their particles; split_particle[q] = 1 if q's
-// stencil reaches a split node (left untouched otherwise: zero it before).
+// stencil reaches a split node, side_mask[q] the bits (side_bit) of its stencil nodes where it is
+// on side B (both left untouched for other particles: zero them before).
 void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle);
+                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask);
 // Zeroes every field of the given (grid, block) keys (field B after the substep).
 void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 
@@ -114,7 +115,8 @@ void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id
 void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
                                const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream);
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, void* stream);
+                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                       void* stream);
 void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 #endif
 

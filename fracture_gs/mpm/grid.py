@@ -109,9 +109,13 @@ class FragmentFields:
     reference: torch.Tensor        # (2K, nodes) int64 reference keys (first K grids)
     split_particle: torch.Tensor   # (N,) uint8: the stencil reaches a split node
     split_gradient: float          # |∇D| (1/length) at which a node splits
+    # (N,) int32 from the partition: bit 9a + 3b + c set where the particle is on side B at its
+    # stencil node (a, b, c); None: G2P finds the sides from the reference keys again.
+    side_mask: torch.Tensor | None = None
 
     def as_list(self) -> list[torch.Tensor]:
-        return [self.damage_gradient, self.reference, self.split_particle]
+        tensors = [self.damage_gradient, self.reference, self.split_particle]
+        return tensors + [self.side_mask] if self.side_mask is not None else tensors
 
 
 @dataclass

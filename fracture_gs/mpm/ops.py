@@ -92,15 +92,16 @@ def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tenso
 def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
                        mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
                        dt: float, damage_gradient: torch.Tensor, split_gradient: float, grid: GridFields,
-                       backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+                       backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Fragments, step 3: at every split node (reference |∇D| >= ``split_gradient``, 1/length) the
     object's field A and its field B (grid K + g) are summed again from the particles of each side.
-    Returns (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys holding a split node)."""
+    Returns (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys holding a split node,
+    side_mask (N,) int32: bit 9a + 3b + c set where the particle is on side B at stencil node (a, b, c))."""
     if use_compiled(x.device, backend):
-        split_particle, split_keys = compiled_module().mpm_fragment_partition(
+        split_particle, split_keys, side_mask = compiled_module().mpm_fragment_partition(
             bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id, *geometry.args(), dt, damage_gradient,
             grid.reference, split_gradient, grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment)
-        return split_particle, split_keys
+        return split_particle, split_keys, side_mask
     return reference.fragment_partition(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, damage_gradient,
                                         split_gradient, grid)
 

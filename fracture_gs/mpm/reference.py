@@ -158,11 +158,12 @@ def _fragment_fields(index: torch.Tensor, grid_id: torch.Tensor, damage_gradient
 def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
                        rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
                        damage_gradient: torch.Tensor, split_gradient: float,
-                       grid: GridFields) -> tuple[torch.Tensor, torch.Tensor]:
+                       grid: GridFields) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """At split nodes (reference |∇D| >= split_gradient), fields A (grid g) and B (grid K + g) are
     summed again from their own particles: p is on side B where ∇D_p · ∇D_ref < 0. Returns
     (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys of the K grids holding a
-    split node, ascending). ``geometry``: K object grids; ``grid``: 2K fields, B zero on entry."""
+    split node, ascending, side_mask (N,) int32: bit 9a + 3b + c set where p is on side B at its
+    stencil node (a, b, c)). ``geometry``: K object grids; ``grid``: 2K fields, B zero on entry."""
     assert grid.reference is not None and grid.mass_gradient is not None and grid.position_moment is not None
     K, nodes = geometry.n_grids, geometry.nodes_per_grid
     node, weight, gradient, dpos = _stencil(x, geometry)
@@ -179,7 +180,9 @@ def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress
     grid.mass_gradient.view(-1, 3).index_add_(0, target, (gradient * mass[:, None, None])[split])
     grid.position_moment.view(-1, 3).index_add_(0, target, (-(weight * mass[:, None])[..., None] * dpos)[split])
     block = key_split.view(K, geometry.n_blocks, BLOCK ** 3).any(-1).flatten()
-    return split.any(1).to(torch.uint8), torch.nonzero(block).flatten().to(torch.int32)
+    side_b = (field >= K).to(torch.int64)                               # (N,27), STENCIL order: bit 9a + 3b + c
+    side_mask = (side_b << torch.arange(27, device=x.device)).sum(1).to(torch.int32)
+    return split.any(1).to(torch.uint8), torch.nonzero(block).flatten().to(torch.int32), side_mask
 
 
 def _split_nodes(reference_keys: torch.Tensor, split_gradient: float) -> torch.Tensor:

@@ -177,7 +177,7 @@ class CollisionMPM:
         p, s, g, geo = self.particles, self.state, self.grid, self.geometry
         damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, self.split_gradient, g,
                                                  self.backend)
-        split_particle, split_keys = ops.fragment_partition(
+        split_particle, split_keys, side_mask = ops.fragment_partition(
             bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, damage_gradient,
             self.split_gradient, g, self.backend)
         if len(split_keys) == 0:
@@ -187,7 +187,7 @@ class CollisionMPM:
         field_bins = dataclasses.replace(bins, touched=torch.cat([bins.touched, field_b]).contiguous(),
                                          contact_blocks=contact_blocks.to(torch.int32).contiguous())
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
-                                          self.split_gradient)
+                                          self.split_gradient, side_mask.contiguous())
 
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
