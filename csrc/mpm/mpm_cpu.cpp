@@ -472,7 +472,8 @@ struct ReferenceNodeVelocity {
 // g2p_gather (csrc/common/mpm_transfer.h) with the node velocities as 4-wide vectors: per node
 // two vector multiply-adds (sums along z), per (x, y) column four, instead of twelve scalar
 // ones per node. node_velocity(node index within one grid, side_bit of the stencil node) gives
-// the 3 floats to read: the object's grid, or with fragments the field (A or B) of q's side. Same outputs as the scalar gathers; tested against the same torch twin.
+// the 3 floats to read: the object's grid, or with fragments the field (A or B) of q's side.
+// Same outputs as the scalar gathers; tested against the same torch twin.
 template <class NodeVelocity>
 bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
                     const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
