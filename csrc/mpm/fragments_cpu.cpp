@@ -11,6 +11,7 @@
 
 #include "common/mpm_fragments.h"
 #include "mpm/cpu_vector.h"
+#include "mpm/p2g_records.h"
 #include "mpm/mpm_kernels.h"
 
 namespace fgs {
@@ -176,28 +177,18 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
     const float* dq = frag.damage_gradient + 3 * (long long)q;
     const float damage_gradient[3] = {dq[0], dq[1], dq[2]};  // in registers: the window stores may alias dq
     uint32_t mask = 0;
-    // The records of P2G (csrc/mpm/mpm_cpu.cpp, p2g_cell_window) without the damage lane.
-    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], 0.f, 0.f, 0.f, 0.f};
-    const Record affine_x = {0.f, A[0], A[3], A[6], -m, 0.f, 0.f, 0.f};
-    const Record affine_y = {0.f, A[1], A[4], A[7], 0.f, -m, 0.f, 0.f};
-    const Record affine_z = {0.f, A[2], A[5], A[8], 0.f, 0.f, -m, 0.f};
+    // P2G's records (csrc/mpm/p2g_records.h) without the damage lane.
+    const ParticleRecords records = particle_records(m, p.v + 3 * (long long)q, A, 0.f);
     for (int a = 0; a < 3; ++a) {
-      const float px = ((float)a - aw[0].f) * dx;
       for (int b = 0; b < 3; ++b) {
+        const ColumnRecords column = column_records(records, aw, a, b, dx);
         const int row = ((lx + a) * kSpan + ly + b) * kSpan + lz;
-        const float py = ((float)b - aw[1].f) * dx;
-        const float wab = aw[0].w[a] * aw[1].w[b];
-        const Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
-        const Record along = wab * affine_z;
-        const Lane4 gradient_in_plane = {m * aw[0].dw[a] * aw[1].w[b], m * aw[0].w[a] * aw[1].dw[b], 0.f, 0.f};
-        const Lane4 gradient_along = {0.f, 0.f, m * wab, 0.f};
         for (int c = 0; c < 3; ++c) {
           if (win.reference[row + c] < 0) continue;
           const int side = sides_differ(damage_gradient, win.reference_gradient[row + c]) ? 1 : 0;
           if (side) mask |= side_bit(a, b, c);
-          const float pz = ((float)c - aw[2].f) * dx;
-          win.fields[side][row + c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along;
-          win.gradient[side][row + c] += aw[2].w[c] * gradient_in_plane + aw[2].dw[c] * gradient_along;
+          win.fields[side][row + c] += column.node_record(c);
+          win.gradient[side][row + c] += column.node_gradient(c);
         }
       }
     }

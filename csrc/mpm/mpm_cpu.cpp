@@ -10,6 +10,7 @@
 
 #include "mpm/constitutive_batch.h"
 #include "mpm/cpu_vector.h"
+#include "mpm/p2g_records.h"
 #include "mpm/mpm_kernels.h"
 
 namespace fgs {
@@ -258,34 +259,18 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
-    // Per-particle record directions; a node's record is a combination of them with weights.
-    // Per unit offset x_i - x_p: momentum A (x_i - x_p), position moment -m (x_i - x_p).
     const float damage = p.fractured ? m * particle_damage(p.fractured[q]) : 0.f;
-    const Record base = {m, m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2], 0.f, 0.f, 0.f, damage};
-    const Record affine_x = {0.f, A[0], A[3], A[6], -m, 0.f, 0.f, 0.f};
-    const Record affine_y = {0.f, A[1], A[4], A[7], 0.f, -m, 0.f, 0.f};
-    const Record affine_z = {0.f, A[2], A[5], A[8], 0.f, 0.f, -m, 0.f};
+    const ParticleRecords records = particle_records(m, p.v + 3 * q, A, damage);  // csrc/mpm/p2g_records.h
     const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
     for (int a = 0; a < 3; ++a) {
-      const float px = ((float)a - aw[0].f) * dx;
       for (int b = 0; b < 3; ++b) {
-        const float py = ((float)b - aw[1].f) * dx;
-        const float wab = aw[0].w[a] * aw[1].w[b];
-        // Record of node (a, b, c) = wz_c * in_plane + wz_c pz_c * along.
-        const Record in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
-        const Record along = wab * affine_z;
+        const ColumnRecords column = column_records(records, aw, a, b, dx);
         const int row_offset = ((lx + a) * kWindow + (ly + b)) * kWindow + lz;
         Record* row = window + row_offset;
-        for (int c = 0; c < 3; ++c) {
-          const float pz = ((float)c - aw[2].f) * dx;
-          row[c] += aw[2].w[c] * in_plane + (aw[2].w[c] * pz) * along;
-        }
+        for (int c = 0; c < 3; ++c) row[c] += column.node_record(c);
         if constexpr (kWithContact) {
-          // Mass gradient of node (a, b, c) = wz_c * (m dwx wy, m wx dwy, 0) + dwz_c * (0, 0, m wx wy).
-          const Lane4 gradient_in_plane = {m * aw[0].dw[a] * aw[1].w[b], m * aw[0].w[a] * aw[1].dw[b], 0.f, 0.f};
-          const Lane4 gradient_along = {0.f, 0.f, m * wab, 0.f};
           Lane4* gradient_row = gradient_window + row_offset;
-          for (int c = 0; c < 3; ++c) gradient_row[c] += aw[2].w[c] * gradient_in_plane + aw[2].dw[c] * gradient_along;
+          for (int c = 0; c < 3; ++c) gradient_row[c] += column.node_gradient(c);
         }
       }
     }
