@@ -51,21 +51,6 @@ void for_cells_by_color(const BinsView& bins, const Body& body) {
   }
 }
 
-// Damage gradient sum_i D_i grad w_ip of a particle with stencil aw, from the nodal damage D of its
-// cell's span (first stencil node at span coordinates l): summed along z first, per (x, y) column.
-inline void span_damage_gradient(const AxisWeights aw[3], const float* span_damage, const int l[3], float out[3]) {
-  out[0] = out[1] = out[2] = 0.f;
-  for (int a = 0; a < 3; ++a)
-    for (int b = 0; b < 3; ++b) {
-      const float* column = span_damage + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
-      const float dw_sum = column[0] * aw[2].dw[0] + column[1] * aw[2].dw[1] + column[2] * aw[2].dw[2];
-      const float w_sum = column[0] * aw[2].w[0] + column[1] * aw[2].w[1] + column[2] * aw[2].w[2];
-      out[0] += aw[0].dw[a] * aw[1].w[b] * w_sum;
-      out[1] += aw[0].w[a] * aw[1].dw[b] * w_sum;
-      out[2] += aw[0].w[a] * aw[1].w[b] * dw_sum;
-    }
-}
-
 }  // namespace
 
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
@@ -101,7 +86,9 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       AxisWeights aw[3];
       stencil_weights(x + 3 * (long long)q, geo, aw);
       const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
-      span_damage_gradient(aw, span_damage, l, gq);
+      stencil_damage_gradient(aw, [&](int a, int b, int c) {  // D_i from the cell's span
+        return span_damage[((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2] + c];
+      }, gq);
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       any_key = true;
