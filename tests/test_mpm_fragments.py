@@ -181,6 +181,51 @@ def test_fragment_kernels_match_reference(seed, device):
     assert float((plain[1] - twin_out[1]).abs().max()) > 1e-3 * velocity_scale, "split nodes must change G2P"
 
 
+def test_partition_empties_side_a_where_every_particle_is_on_side_b():
+    """Field A at a split node is P2G's sum minus side B; where every particle of the node is on side
+    B that difference is only rounding, and the node's whole sum must move to B with A exactly 0
+    (split_node_fields), in the kernel and in the twin. A row of particles along x: the first is
+    every node's reference, all others point their damage gradient the other way (side B)."""
+    domain = Domain((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 16)
+    geometry = GridGeometry.from_domain(domain, 1)
+    dx = domain.dx
+    x = torch.stack([torch.tensor([0.3 + 0.5 * i * dx, 0.5 + 0.1 * dx, 0.5 + 0.2 * dx]) for i in range(9)]).float()
+    n = x.shape[0]
+    gen = torch.Generator().manual_seed(3)
+    p = {"x": x.contiguous(), "v": torch.randn(n, 3, generator=gen), "C": torch.randn(n, 3, 3, generator=gen),
+         "stress": 1e2 * torch.randn(n, 3, 3, generator=gen), "mass": 0.5 + torch.rand(n, generator=gen),
+         "rest_volume": 1e-4 * torch.ones(n), "grid_id": torch.zeros(n, dtype=torch.int32),
+         "fractured": torch.ones(n, dtype=torch.bool)}
+    gradient = torch.tensor([[-1.0 / dx, 0.0, 0.0]]).repeat(n, 1)
+    gradient[0] = torch.tensor([1.0 / dx, 0.0, 0.0])                  # the reference: side A
+    split_gradient, dt = 0.25 / dx, 1e-4
+    bins = ops.bin_particles(p["x"], p["grid_id"], geometry, backend="cpp")
+    fields = GridFields.zeros(field_geometry(geometry), CPU, with_contact=True, with_fragments=True)
+    ops.p2g(bins, *(p[k] for k in P2G_KEYS), p["grid_id"], field_geometry(geometry), dt, fields, backend="cpp",
+            fractured=p["fractured"])
+    p2g_mass = fields.mass[0].clone()
+    norm_sq_bits = int(torch.tensor([float(gradient[0].square().sum())]).view(torch.int32))
+    fields.reference[0][p2g_mass > 0] = norm_sq_bits << 32              # particle 0 references every node
+    twin = cast(fields, torch.float64)
+    ops.fragment_partition(bins, *(p[k] for k in P2G_KEYS), p["grid_id"], geometry, dt, gradient, split_gradient,
+                           fields, backend="cpp")
+    reference.fragment_partition(*(p[k].double() for k in P2G_KEYS), p["grid_id"], geometry, dt, gradient.double(),
+                                 split_gradient, twin)
+    index, weight, _, _ = reference._stencil(x, geometry)
+    reached_by_reference = torch.zeros_like(p2g_mass, dtype=torch.bool)
+    reached_by_reference[index[0][weight[0] > 0]] = True
+    only_b = (p2g_mass > 0) & ~reached_by_reference
+    assert int(only_b.sum()) > 0, "the row must reach nodes the reference does not"
+    assert bool((fields.mass[0][only_b] == 0).all()) and bool((twin.mass[0][only_b] == 0).all())
+    assert torch.equal(fields.mass[1][only_b], p2g_mass[only_b])        # moved whole, not re-summed
+    assert bool((fields.momentum[0][only_b] == 0).all())
+    # Where the reference is, A keeps its share and A + B is P2G's sum.
+    both = reached_by_reference & (fields.mass[1] > 0)
+    assert int(both.sum()) > 0 and bool((fields.mass[0][both] > 0).all())
+    assert float((fields.mass[0] + fields.mass[1] - p2g_mass).abs().max()) <= 1e-6 * float(p2g_mass.max())
+    assert rel_err(fields.mass, twin.mass) < REL_TOL and rel_err(fields.momentum, twin.momentum) < REL_TOL
+
+
 def test_fragment_clear_zeroes_only_the_given_blocks():
     geometry = GridGeometry.from_domain(Domain((0, 0, 0), (1, 1, 1), 16), 2)
     for backend in ("cpp", "reference"):

@@ -10,8 +10,9 @@
 //      (its "reference"; ties broken by the particle index, so the choice is order-free: a max).
 //   3. A node is split where |grad D_ref| >= split_gradient (a crack passes by). There, particle p
 //      belongs to field B if grad D_p . grad D_ref < 0 (p lies on the other side of the damage
-//      band than the reference particle), else to field A. Fields A and B of split nodes are
-//      summed again from their own particles (mass, momentum, mass gradient, position moment).
+//      band than the reference particle), else to field A. Field B is summed from its particles
+//      (mass, momentum, mass gradient, position moment), and field A, which holds P2G's sum of
+//      all of them, becomes that sum minus B (split_node_fields).
 //   4. The two fields meet through the contact decision and impulse of the collision pass
 //      (contact_pair, csrc/common/mpm_math.h): momentum-conserving, frictional, separation allowed.
 //   5. G2P reads, at each split node, the field its side of that node names.
@@ -130,6 +131,34 @@ HOST_DEVICE inline void p2g_node_add(const AxisWeights aw[3], int a, int b, int 
   moment[0] -= w * m * px;
   moment[1] -= w * m * py;
   moment[2] -= w * m * pz;
+}
+
+// Share of a split node's P2G mass below which its side A counts as empty once side B's share is
+// taken out: P2G's sum minus B is then rounding noise (every particle there is on side B).
+constexpr float kEmptySideShare = 1e-5f;
+
+// Fields A (index ia) and B (ib) of a split node: A holds P2G's sum over all the node's particles,
+// B the share of the particles on side B. A becomes the side-A share, P2G's sum minus B (mass,
+// momentum, mass gradient, position moment). Where that leaves only rounding noise, B takes the
+// whole sum and A is emptied exactly. Either way A + B is P2G's sum, so momentum is kept.
+HOST_DEVICE inline void split_node_fields(long long ia, long long ib, float* mass, float* momentum,
+                                          float* mass_gradient, float* moment) {
+  const float total = mass[ia];
+  const float side_a = total - mass[ib];
+  float* vectors[3] = {momentum, mass_gradient, moment};
+  if (side_a <= kEmptySideShare * total) {
+    mass[ib] = total;
+    mass[ia] = 0.f;
+    for (float* field : vectors)
+      for (int d = 0; d < 3; ++d) {
+        field[3 * ib + d] = field[3 * ia + d];
+        field[3 * ia + d] = 0.f;
+      }
+    return;
+  }
+  mass[ia] = side_a;
+  for (float* field : vectors)
+    for (int d = 0; d < 3; ++d) field[3 * ia + d] -= field[3 * ib + d];
 }
 
 // Node velocities of particle q of grid g with fragments: at a split node the field of q's side.

@@ -8,6 +8,9 @@
 #include <algorithm>
 #include <cstring>
 #include <omp.h>
+#if defined(__SSE__)
+#include <xmmintrin.h>
+#endif
 
 #include "common/mpm_fragments.h"
 #include "mpm/cpu_vector.h"
@@ -25,6 +28,61 @@ inline void span_origin(int block, const GridShape& s, int origin[3]) {
   origin[0] = (block / (s.by * s.bz)) * kBlock;
   origin[1] = ((block / s.bz) % s.by) * kBlock;
   origin[2] = (block % s.bz) * kBlock;
+}
+
+// Bit l set where lane l of v is < 0.
+inline uint32_t negative_lanes(Lane4 v) {
+  const auto negative = v < 0.f;  // lanes: -1 where true, 0 elsewhere
+#if defined(__SSE__)
+  return (uint32_t)_mm_movemask_ps((__m128)negative);  // the sign bits of the lanes
+#else
+  return (uint32_t)(negative[0] & 1) | (uint32_t)(negative[1] & 2) | (uint32_t)(negative[2] & 4) |
+         (uint32_t)(negative[3] & 8);
+#endif
+}
+
+inline Lane4 load_row(const float* row) {  // nodes c = 0, 1, 2 of a stencil row (lane 3: the next node)
+  Lane4 v;
+  __builtin_memcpy(&v, row, sizeof(v));
+  return v;
+}
+
+// True if some node of a particle's stencil (its first node at l in the span) has a value > 0 in
+// `span` (kSpanNodes + 1 floats, all >= 0; the last one is read, not used).
+inline bool stencil_reaches_positive(const float* span, const int l[3]) {
+  Lane4 highest = {0.f, 0.f, 0.f, 0.f};
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) {
+      const Lane4 row = load_row(span + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2]);
+      highest = row > highest ? row : highest;
+    }
+  return (negative_lanes(-highest) & 7u) != 0;  // lanes 0-2: the stencil's nodes
+}
+
+// Damage gradient sum_i D_i grad w_ip of a particle whose stencil starts at l in the span: the
+// formula of stencil_damage_gradient (csrc/common/mpm_fragments.h) with 4-wide rows. Per (x, y)
+// column of the stencil, its 3 nodes along z are one 4-wide load (the fourth lane, the next node of
+// the span, meets a zero weight), scaled by the column's x and y weight products and summed into
+// three accumulators; the z weights are applied once at the end. Tested against the torch twin.
+inline void span_damage_gradient(const float* span, const int l[3], const AxisWeights aw[3], float out[3]) {
+  Lane4 sum_x[3], sum_y[3], sum_z[3];  // per x layer a: three short chains instead of one long one
+  for (int a = 0; a < 3; ++a) {
+    sum_x[a] = sum_y[a] = sum_z[a] = Lane4{0.f, 0.f, 0.f, 0.f};
+    for (int b = 0; b < 3; ++b) {
+      const Lane4 row = load_row(span + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2]);
+      sum_x[a] += (aw[0].dw[a] * aw[1].w[b]) * row;
+      sum_y[a] += (aw[0].w[a] * aw[1].dw[b]) * row;
+      sum_z[a] += (aw[0].w[a] * aw[1].w[b]) * row;
+    }
+  }
+  const Lane4 along_x = (sum_x[0] + sum_x[1]) + sum_x[2], along_y = (sum_y[0] + sum_y[1]) + sum_y[2],
+              along_z = (sum_z[0] + sum_z[1]) + sum_z[2];
+  const Lane4 w_z = {aw[2].w[0], aw[2].w[1], aw[2].w[2], 0.f};
+  const Lane4 dw_z = {aw[2].dw[0], aw[2].dw[1], aw[2].dw[2], 0.f};
+  const Lane4 x_terms = along_x * w_z, y_terms = along_y * w_z, z_terms = along_z * dw_z;
+  out[0] = (x_terms[0] + x_terms[1]) + x_terms[2];
+  out[1] = (y_terms[0] + y_terms[1]) + y_terms[2];
+  out[2] = (z_terms[0] + z_terms[1]) + z_terms[2];
 }
 
 // Calls body(span index, node index within one grid) for every node of the span inside the grid.
@@ -64,7 +122,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     int origin[3];
     span_origin(block, s, origin);
     // Nodal damage D_i = sum w m D / sum w m over the span (0 without mass or outside the grid).
-    float span_damage[kSpanNodes] = {};
+    float span_damage[kSpanNodes + 1] = {};  // + 1: the 4-wide row loads read one node past the last
     bool damaged = false;
     const float* mass = grid_mass + (long long)g * nodes;
     const float* damage = grid_damage + (long long)g * nodes;
@@ -86,9 +144,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       AxisWeights aw[3];
       stencil_weights(x + 3 * (long long)q, geo, aw);
       const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
-      stencil_damage_gradient(aw, [&](int a, int b, int c) {  // D_i from the cell's span
-        return span_damage[((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2] + c];
-      }, gq);
+      span_damage_gradient(span_damage, l, aw, gq);  // D_i from the cell's span
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       any_key = true;
@@ -106,87 +162,89 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
   });
 }
 
-void fragment_split_nodes_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
-                              const FragmentView& frag, GridArrays grid, uint8_t* split_block) {
-  const long long nodes = geo.shape.nodes();
-  const int n_blocks = geo.shape.blocks();
-#pragma omp parallel for schedule(static)
-  for (int t = 0; t < n_touched; ++t) {
-    const long long first = (long long)(touched[t] / n_blocks) * nodes + (long long)(touched[t] % n_blocks) * kBlockNodes;
-    uint8_t any = 0;
-    for (long long idx = first; idx < first + kBlockNodes; ++idx) {
-      if (!key_is_split(frag.reference[idx], frag.split_bits)) continue;
-      any = 1;
-      grid.mass[idx] = 0.f;
-      for (int d = 0; d < 3; ++d) {
-        grid.momentum[3 * idx + d] = 0.f;
-        grid.mass_gradient[3 * idx + d] = 0.f;
-        grid.position_moment[3 * idx + d] = 0.f;
-      }
-    }
-    split_block[touched[t]] = any;
-  }
-}
-
 namespace {
 
-// A cell's view of the partition and its fields A and B, per node of its span (per thread).
+// A cell's view of the partition and its field B, per node of its span (per thread). The
+// reference gradients are kept as three arrays, zero where a node is not split, so that the side
+// tests of a stencil row (3 nodes along z) are one 4-wide dot product: at a node that is not split
+// the dot product is 0, which is "side A", as at a split node where it is not negative.
 struct PartitionWindow {
-  int32_t reference[kSpanNodes];  // reference particle of a split node, -1 where not split
-  float reference_gradient[kSpanNodes][3];  // its damage gradient
-  Record fields[2][kSpanNodes];   // A, B: [mass, momentum xyz, position moment xyz, unused]
-  Lane4 gradient[2][kSpanNodes];  // A, B: mass gradient xyz (fields and gradient: split nodes only)
+  float reference_gradient[3][kSpanNodes + 1];  // grad D of each split node's reference, 0 elsewhere
+  float split[kSpanNodes + 1];                  // 1 at split nodes, 0 elsewhere
+  Record field_b[kSpanNodes];                   // side B: [mass, momentum xyz, position moment xyz, unused]
+  Lane4 gradient_b[kSpanNodes];                 // side B: mass gradient xyz (fields: split nodes only)
 };
 
-// Sums the cell's particles into the window's fields A and B at its split nodes (particles that
-// reach none are skipped: split_particle and side_mask stay 0).
+// Side mask (side_bit set where grad D_p . grad D_ref < 0) of a particle with stencil origin l in
+// the span, and whether its stencil reaches a split node at all.
+inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], const float gq[3],
+                                    bool* reaches_split) {
+  uint32_t mask = 0;
+  Lane4 split_sum = {0.f, 0.f, 0.f, 0.f};
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b) {
+      const int row = ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
+      const Lane4 dot = (gq[0] * load_row(win.reference_gradient[0] + row) +
+                         gq[1] * load_row(win.reference_gradient[1] + row)) +
+                        gq[2] * load_row(win.reference_gradient[2] + row);
+      mask |= (negative_lanes(dot) & 7u) << (9 * a + 3 * b);
+      split_sum += load_row(win.split + row);
+    }
+  *reaches_split = (split_sum[0] + split_sum[1] + split_sum[2]) > 0.f;
+  return mask;
+}
+
+// Sums the side-B share of the cell's particles into the window (particles that reach no split
+// node, or are on side A at every split node they reach, add nothing; split_particle and
+// side_mask record what each particle found).
 void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                     const FragmentView& frag, const int origin[3], PartitionWindow& win, uint8_t* split_particle,
                     int32_t* side_mask) {
   const float dx = geo.dx;
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
-    AxisWeights aw[3];
-    stencil_weights(p.x + 3 * (long long)q, geo, aw);
-    const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
-    // Most particles of a cell near a crack reach no split node, and then need no APIC matrix.
-    bool reaches_split = false;
-    for (int a = 0; a < 3 && !reaches_split; ++a)
-      for (int b = 0; b < 3; ++b) {
-        const int32_t* column = win.reference + ((lx + a) * kSpan + ly + b) * kSpan + lz;
-        reaches_split |= (column[0] & column[1] & column[2]) >= 0;  // the AND of -1s is -1: some node >= 0
-      }
+    const float* xq = p.x + 3 * (long long)q;
+    int l[3];
+    for (int d = 0; d < 3; ++d) l[d] = (int)floorf((xq[d] - geo.lower[d]) * geo.inv_dx - 0.5f) - origin[d];
+    const float* dq = frag.damage_gradient + 3 * (long long)q;
+    const float damage_gradient[3] = {dq[0], dq[1], dq[2]};
+    bool reaches_split;
+    uint32_t mask = 0;  // a zero gradient (no damage in reach) is on side A everywhere: no dot products
+    if (damage_gradient[0] != 0.f || damage_gradient[1] != 0.f || damage_gradient[2] != 0.f)
+      mask = side_mask_in_window(win, l, damage_gradient, &reaches_split);
+    else
+      reaches_split = stencil_reaches_positive(win.split, l);
     split_particle[q] = reaches_split ? 1 : 0;
-    if (!reaches_split) continue;
+    side_mask[q] = (int32_t)mask;
+    if (mask == 0) continue;  // side A wherever it meets a split node: P2G's field A already holds it
+    AxisWeights aw[3];
+    stencil_weights(xq, geo, aw);
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
-    const float* dq = frag.damage_gradient + 3 * (long long)q;
-    const float damage_gradient[3] = {dq[0], dq[1], dq[2]};  // in registers: the window stores may alias dq
-    uint32_t mask = 0;
-    // P2G's records (csrc/mpm/p2g_records.h) without the damage lane.
+    // P2G's records (csrc/mpm/p2g_records.h) without the damage lane, at the side-B nodes only.
     const ParticleRecords records = particle_records(m, p.v + 3 * (long long)q, A, 0.f);
     for (int a = 0; a < 3; ++a) {
       for (int b = 0; b < 3; ++b) {
+        const uint32_t column_bits = (mask >> (9 * a + 3 * b)) & 7u;
+        if (column_bits == 0) continue;
         const ColumnRecords column = column_records(records, aw, a, b, dx);
-        const int row = ((lx + a) * kSpan + ly + b) * kSpan + lz;
+        const int row = ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
         for (int c = 0; c < 3; ++c) {
-          if (win.reference[row + c] < 0) continue;
-          const int side = sides_differ(damage_gradient, win.reference_gradient[row + c]) ? 1 : 0;
-          if (side) mask |= side_bit(a, b, c);
-          win.fields[side][row + c] += column.node_record(c);
-          win.gradient[side][row + c] += column.node_gradient(c);
+          if (!(column_bits & (1u << c))) continue;
+          win.field_b[row + c] += column.node_record(c);
+          win.gradient_b[row + c] += column.node_gradient(c);
         }
       }
     }
-    side_mask[q] = (int32_t)mask;
   }
 }
 
 }  // namespace
 
 void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask) {
+                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                      uint8_t* side_b_block) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
@@ -202,37 +260,50 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
         span_origin(block, s, origin);
         const int64_t* keys = frag.reference + (long long)g * nodes;
         bool any_split = false;
-        std::fill(win.reference, win.reference + kSpanNodes, -1);
+        for (int d = 0; d < 3; ++d) std::fill_n(win.reference_gradient[d], kSpanNodes + 1, 0.f);
+        std::fill_n(win.split, kSpanNodes + 1, 0.f);
         for_span_nodes(origin, s, [&](int w, long long node) {
           if (!key_is_split(keys[node], frag.split_bits)) return;
           const long long ref = key_particle(keys[node]);
-          win.reference[w] = (int32_t)ref;
-          for (int d = 0; d < 3; ++d) win.reference_gradient[w][d] = frag.damage_gradient[3 * ref + d];
-          for (int side = 0; side < 2; ++side) {  // the fields are only summed and read at split nodes
-            win.fields[side][w] = Record{};
-            win.gradient[side][w] = Lane4{};
-          }
+          for (int d = 0; d < 3; ++d) win.reference_gradient[d][w] = frag.damage_gradient[3 * ref + d];
+          win.split[w] = 1.f;
+          win.field_b[w] = Record{};  // field B is only summed and read at split nodes
+          win.gradient_b[w] = Lane4{};
           any_split = true;
         });
         if (!any_split) continue;  // no particle of the cell reaches a split node (split_particle stays 0)
         partition_cell(bins, cell, p, geo, dt, frag, origin, win, split_particle, side_mask);
+        // Cells of one colour span disjoint blocks, so the flags are written without races.
+        uint8_t* b_blocks = side_b_block + (long long)g * n_blocks;
         for_span_nodes(origin, s, [&](int w, long long node) {
-          if (win.reference[w] < 0) return;
-          for (int side = 0; side < 2; ++side) {
-            const Record r = win.fields[side][w];
-            if (side == 1 && r[0] == 0.f) continue;  // no particle on side B here (B is zero on entry)
-            const long long idx = (long long)(g + side * frag.n_fields) * nodes + node;
-            const Lane4 gradient = win.gradient[side][w];
-            grid.mass[idx] += r[0];
-            for (int d = 0; d < 3; ++d) {
-              grid.momentum[3 * idx + d] += r[1 + d];
-              grid.position_moment[3 * idx + d] += r[4 + d];
-              grid.mass_gradient[3 * idx + d] += gradient[d];
-            }
+          if (win.split[w] == 0.f) return;
+          const Record r = win.field_b[w];
+          if (r[0] == 0.f) return;  // no particle on side B here (B is zero on entry)
+          const long long idx = (long long)(g + frag.n_fields) * nodes + node;
+          const Lane4 gradient = win.gradient_b[w];
+          grid.mass[idx] += r[0];
+          for (int d = 0; d < 3; ++d) {
+            grid.momentum[3 * idx + d] += r[1 + d];
+            grid.position_moment[3 * idx + d] += r[4 + d];
+            grid.mass_gradient[3 * idx + d] += gradient[d];
           }
+          b_blocks[node / kBlockNodes] = 1;
         });
       }
     }
+  }
+}
+
+void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid) {
+  const long long nodes = geo.shape.nodes();
+  const int n_blocks = geo.shape.blocks();
+  const long long field_b = (long long)geo.n_grids * nodes;
+#pragma omp parallel for schedule(static)
+  for (int t = 0; t < n_keys; ++t) {
+    const long long first = (long long)(keys[t] / n_blocks) * nodes + (long long)(keys[t] % n_blocks) * kBlockNodes;
+    for (long long idx = first; idx < first + kBlockNodes; ++idx)
+      if (grid.mass[idx + field_b] != 0.f)
+        split_node_fields(idx, idx + field_b, grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment);
   }
 }
 

@@ -1,7 +1,7 @@
 // CUDA kernels of the damage-gradient partitioning (csrc/common/mpm_fragments.h); the math is the
 // CPU kernels' (csrc/mpm/fragments_cpu.cpp). Deterministic: the reference key is a 64-bit integer
-// maximum (order-free), and fields A and B are summed per node, one thread per tile node walking
-// its cell's particles in their sorted order, colour by colour (as P2G).
+// maximum (order-free), and field B is summed per node, one thread per tile node walking its
+// cell's particles in their sorted order, colour by colour (as P2G).
 #include <cuda_runtime.h>
 
 #include "mpm/mpm_kernels.h"
@@ -43,26 +43,21 @@ __global__ void reference_kernel(long long n, const float* x, const int32_t* gri
                   (unsigned long long)key);
 }
 
-__global__ void split_nodes_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, FragmentView frag,
-                                   GridArrays grid, uint8_t* split_block) {
+// Field A of a node with side-B mass becomes P2G's sum minus side B (split_node_fields).
+__global__ void merge_kernel(const int32_t* keys, int n_keys, MPMGeometry geo, GridArrays grid) {
   const long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
-  if (t >= (long long)n_touched * kBlockNodes) return;
-  const long long idx = key_node(touched, t, geo);
-  if (!key_is_split(frag.reference[idx], frag.split_bits)) return;
-  split_block[touched[t / kBlockNodes]] = 1;  // every writer stores the same value
-  grid.mass[idx] = 0.f;
-  for (int d = 0; d < 3; ++d) {
-    grid.momentum[3 * idx + d] = 0.f;
-    grid.mass_gradient[3 * idx + d] = 0.f;
-    grid.position_moment[3 * idx + d] = 0.f;
-  }
+  if (t >= (long long)n_keys * kBlockNodes) return;
+  const long long idx = key_node(keys, t, geo);
+  const long long idx_b = idx + (long long)geo.n_grids * geo.shape.nodes();
+  if (grid.mass[idx_b] != 0.f)
+    split_node_fields(idx, idx_b, grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment);
 }
 
 // One thread block per cell of the colour, one thread per node of the cell's 6x6x6 tile: a split
-// node sums the cell's particles into the field of their side (A or B).
+// node sums the cell's particles on side B into field B (field A keeps P2G's sum of all).
 __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
                                        FragmentView frag, GridArrays grid, uint8_t* split_particle,
-                                       int32_t* side_mask) {
+                                       int32_t* side_mask, uint8_t* side_b_block) {
   const GridShape s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
@@ -77,7 +72,7 @@ __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleA
   const int64_t key = frag.reference[(long long)g * nodes + node];
   if (!key_is_split(key, frag.split_bits)) return;
   const long long ref = key_particle(key);
-  float mass[2] = {0.f, 0.f}, momentum[2][3] = {}, gradient[2][3] = {}, moment[2][3] = {};
+  float mass = 0.f, momentum[3] = {}, gradient[3] = {}, moment[3] = {};
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
     AxisWeights aw[3];
@@ -85,23 +80,23 @@ __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleA
     const int a = node_ijk[0] - aw[0].base, b = node_ijk[1] - aw[1].base, c = node_ijk[2] - aw[2].base;
     if (a < 0 || a > 2 || b < 0 || b > 2 || c < 0 || c > 2) continue;
     split_particle[q] = 1;  // every writer stores the same value
-    const int side = fragment_side(frag.damage_gradient, q, ref);
-    if (side) atomicOr(reinterpret_cast<unsigned int*>(side_mask + q), side_bit(a, b, c));  // integer OR: order-free
+    if (!fragment_side(frag.damage_gradient, q, ref)) continue;  // side A: in P2G's sum already
+    atomicOr(reinterpret_cast<unsigned int*>(side_mask + q), side_bit(a, b, c));  // integer OR: order-free
     const float m = p.mass[q];
     const float mv[3] = {m * p.v[3 * q], m * p.v[3 * q + 1], m * p.v[3 * q + 2]};
     float A[9];
     apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
-    p2g_node_add(aw, a, b, c, m, mv, A, geo.dx, &mass[side], momentum[side], gradient[side], moment[side]);
+    p2g_node_add(aw, a, b, c, m, mv, A, geo.dx, &mass, momentum, gradient, moment);
   }
-  for (int side = 0; side < 2; ++side) {
-    const long long idx = (long long)(g + side * frag.n_fields) * nodes + node;
-    grid.mass[idx] += mass[side];
-    for (int d = 0; d < 3; ++d) {
-      grid.momentum[3 * idx + d] += momentum[side][d];
-      grid.mass_gradient[3 * idx + d] += gradient[side][d];
-      grid.position_moment[3 * idx + d] += moment[side][d];
-    }
+  if (mass == 0.f) return;  // no particle on side B here (B is zero on entry)
+  const long long idx = (long long)(g + frag.n_fields) * nodes + node;
+  grid.mass[idx] += mass;
+  for (int d = 0; d < 3; ++d) {
+    grid.momentum[3 * idx + d] += momentum[d];
+    grid.mass_gradient[3 * idx + d] += gradient[d];
+    grid.position_moment[3 * idx + d] += moment[d];
   }
+  side_b_block[(long long)g * n_blocks + node / kBlockNodes] = 1;  // every writer stores the same value
 }
 
 __global__ void clear_kernel(const int32_t* keys, int n_keys, MPMGeometry geo, GridArrays grid) {
@@ -127,23 +122,22 @@ void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id
       n, x, grid_id, geo, mass_eps, split_bits, grid_mass, grid_damage, damage_gradient, reference);
 }
 
-void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
-                               const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream) {
-  if (n_touched == 0) return;
-  split_nodes_kernel<<<blocks_for((long long)n_touched * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
-      touched, n_touched, geo, frag, grid, split_block);
-}
-
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                        const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
-                       void* stream) {
+                       uint8_t* side_b_block, void* stream) {
   static_assert(kTileNodes <= kThreads, "one thread per tile node");
   for (int color = 0; color < 8; ++color) {
     const int begin = bins.color_start[color], count = bins.color_start[color + 1] - begin;
     if (count > 0)
       partition_color_kernel<<<count, kThreads, 0, as_stream(stream)>>>(bins, begin, p, geo, dt, frag, grid,
-                                                                         split_particle, side_mask);
+                                                                         split_particle, side_mask, side_b_block);
   }
+}
+
+void fragment_merge_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream) {
+  if (n_keys == 0) return;
+  merge_kernel<<<blocks_for((long long)n_keys * kBlockNodes, kThreads), kThreads, 0, as_stream(stream)>>>(
+      keys, n_keys, geo, grid);
 }
 
 void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream) {

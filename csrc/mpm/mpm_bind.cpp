@@ -152,9 +152,9 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
 }
 
 // Fragments, step 3: fields A and B at the split nodes. The grid tensors hold 2K grids (A: 0..K-1,
-// B: K..2K-1; B zero on entry). Returns (split_particle (N) uint8, split_keys (S) int32: the
-// (grid, block) keys of the K grids that hold a split node, ascending, side_mask (N) int32: bit
-// 9a+3b+c set where the particle is on side B at its stencil node (a, b, c)).
+// holding P2G's sums; B: K..2K-1, zero on entry). Returns (split_particle (N) uint8, split_keys (S)
+// int32: the (grid, block) keys of the K grids where a split node got side-B mass, ascending,
+// side_mask (N) int32: bit 9a+3b+c set where the particle is on side B at its stencil node (a, b, c)).
 std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v,
                                        const Tensor& C, const Tensor& stress, const Tensor& mass,
                                        const Tensor& rest_volume, const Tensor& grid_id,
@@ -182,21 +182,26 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
   Tensor color_start = bins[4].to(torch::kCPU);
   const BinsView view = bins_view(bins, color_start);
+  uint8_t* side_b_block = split_block.data_ptr<uint8_t>();
   if (x.device().is_cpu()) {
-    fragment_split_nodes_cpu(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>());
     fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
-                     side_mask.data_ptr<int32_t>());
+                     side_mask.data_ptr<int32_t>(), side_b_block);
   } else {
 #ifdef FGS_WITH_CUDA
-    fragment_split_nodes_cuda(view.touched, view.n_touched, geo, frag, grid, split_block.data_ptr<uint8_t>(),
-                              current_cuda_stream());
     fragment_p2g_cuda(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
-                      side_mask.data_ptr<int32_t>(), current_cuda_stream());
+                      side_mask.data_ptr<int32_t>(), side_b_block, current_cuda_stream());
 #else
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
   }
   Tensor split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
+  if (x.device().is_cpu()) {
+    fragment_merge_cpu(split_keys.data_ptr<int32_t>(), (int)split_keys.numel(), geo, grid);
+  } else {
+#ifdef FGS_WITH_CUDA
+    fragment_merge_cuda(split_keys.data_ptr<int32_t>(), (int)split_keys.numel(), geo, grid, current_cuda_stream());
+#endif
+  }
   return {split_particle, split_keys, side_mask};
 }
 

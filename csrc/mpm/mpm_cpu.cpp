@@ -337,8 +337,12 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
   // Contact blocks (block ids touched by two grids): only there does P2G add the position moment
   // and the mass gradient, the contact pass's inputs; a cell computes the gradient only if its
   // window (2x2x2 blocks) contains one.
+  // With fragments (grid.damage given) any node may turn out split, and the two sides of a split
+  // node meet through the contact pass, which needs both: then every block gets them.
   std::vector<uint8_t> contact_flag;
-  if ((grid.mass_gradient || grid.position_moment) && bins.n_contact > 0) {
+  if (grid.damage && grid.mass_gradient && grid.position_moment) {
+    contact_flag.assign(n_blocks, 1);
+  } else if ((grid.mass_gradient || grid.position_moment) && bins.n_contact > 0) {
     contact_flag.assign(n_blocks, 0);
     for (int i = 0; i < bins.n_contact; ++i) contact_flag[bins.contact_blocks[i]] = 1;
   }

@@ -82,15 +82,17 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
                             uint32_t split_bits, const float* grid_mass, const float* grid_damage,
                             float* damage_gradient, int64_t* reference);
-// Zeroes field A at the split nodes of the touched blocks; split_block[key] = 1 for (grid, block)
-// keys that hold one.
-void fragment_split_nodes_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
-                              const FragmentView& frag, GridArrays grid, uint8_t* split_block);
-// Sums fields A and B at the split nodes from their particles; split_particle[q] = 1 if q's
-// stencil reaches a split node, side_mask[q] the bits (side_bit) of its stencil nodes where it is
-// on side B (both left untouched for other particles: zero them before).
+// Sums field B (grid K + g) at the split nodes from the particles on side B there (field A keeps
+// P2G's sum of all particles); split_particle[q] = 1 if q's stencil reaches a split node,
+// side_mask[q] the bits (side_bit) of its stencil nodes where it is on side B (both left untouched
+// for other particles: zero them before); side_b_block[key] = 1 for the (grid, block) keys of the K
+// grids where field B got mass.
 void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask);
+                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                      uint8_t* side_b_block);
+// After fragment_p2g: field A of every node with side-B mass in the given (grid, block) keys
+// becomes P2G's sum minus side B's share (split_node_fields, csrc/common/mpm_fragments.h).
+void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 // Zeroes every field of the given (grid, block) keys (field B after the substep).
 void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 
@@ -112,11 +114,10 @@ void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt
 void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
                              float mass_eps, uint32_t split_bits, const float* grid_mass, const float* grid_damage, float* damage_gradient,
                              int64_t* reference, void* stream);
-void fragment_split_nodes_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
-                               const FragmentView& frag, GridArrays grid, uint8_t* split_block, void* stream);
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                        const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
-                       void* stream);
+                       uint8_t* side_b_block, void* stream);
+void fragment_merge_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 #endif
 

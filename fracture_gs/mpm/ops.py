@@ -32,8 +32,9 @@ def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, s
 
     The compiled CPU kernel sums mass gradient and position moment on contact blocks only (the
     contact pass reads nothing else); the torch reference and CUDA fill them everywhere. With
-    ``fractured`` (fragments), it also sums Σ w m D into ``grid.damage`` and clears
-    ``grid.reference`` on the touched blocks.
+    ``fractured`` (fragments), it also sums Σ w m D into ``grid.damage``, clears ``grid.reference``
+    on the touched blocks, and sums mass gradient and position moment everywhere (the two sides of
+    a split node meet through the contact pass, wherever it is).
     """
     damage_args = (fractured, grid.damage, grid.reference) if fractured is not None else (None, None, None)
     if use_compiled(x.device, backend):
@@ -94,9 +95,11 @@ def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: 
                        dt: float, damage_gradient: torch.Tensor, split_gradient: float, grid: GridFields,
                        backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Fragments, step 3: at every split node (reference |∇D| >= ``split_gradient``, 1/length) the
-    object's field A and its field B (grid K + g) are summed again from the particles of each side.
-    Returns (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys holding a split node,
-    side_mask (N,) int32: bit 9a + 3b + c set where the particle is on side B at stencil node (a, b, c))."""
+    particles on side B (∇D_p · ∇D_ref < 0) are summed into field B (grid K + g), and field A, which
+    holds P2G's sum of all of them, becomes that sum minus B (``split_node_fields`` in
+    csrc/common/mpm_fragments.h). Returns (split_particle (N,) uint8, split_keys (S,) int32 (grid,
+    block) keys where a split node got side-B mass, side_mask (N,) int32: bit 9a + 3b + c set where
+    the particle is on side B at stencil node (a, b, c))."""
     if use_compiled(x.device, backend):
         split_particle, split_keys, side_mask = compiled_module().mpm_fragment_partition(
             bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id, *geometry.args(), dt, damage_gradient,

@@ -155,33 +155,50 @@ def _fragment_fields(index: torch.Tensor, grid_id: torch.Tensor, damage_gradient
     return split, field
 
 
+# Share of a split node's P2G mass below which side A counts as empty once side B's share is taken
+# out (kEmptySideShare, csrc/common/mpm_fragments.h).
+EMPTY_SIDE_SHARE = 1e-5
+
+
 def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
                        rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
                        damage_gradient: torch.Tensor, split_gradient: float,
                        grid: GridFields) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """At split nodes (reference |∇D| >= split_gradient), fields A (grid g) and B (grid K + g) are
-    summed again from their own particles: p is on side B where ∇D_p · ∇D_ref < 0. Returns
-    (split_particle (N,) uint8, split_keys (S,) int32 (grid, block) keys of the K grids holding a
-    split node, ascending, side_mask (N,) int32: bit 9a + 3b + c set where p is on side B at its
-    stencil node (a, b, c)). ``geometry``: K object grids; ``grid``: 2K fields, B zero on entry."""
+    """At split nodes (reference |∇D| >= split_gradient), p is on side B where ∇D_p · ∇D_ref < 0.
+    Field B (grid K + g) is summed from the side-B particles; field A (grid g), which holds P2G's
+    sum of all of them, becomes that sum minus B — or, where that leaves less than EMPTY_SIDE_SHARE
+    of the sum (rounding noise: every particle there is on side B), B takes the whole sum and A is
+    emptied. Returns (split_particle (N,) uint8, split_keys (S,) int32: (grid, block) keys of the K
+    grids where a split node got side-B mass, ascending, side_mask (N,) int32: bit 9a + 3b + c set
+    where p is on side B at stencil node (a, b, c)). ``geometry``: K object grids; ``grid``: 2K
+    fields, B zero on entry."""
     assert grid.reference is not None and grid.mass_gradient is not None and grid.position_moment is not None
     K, nodes = geometry.n_grids, geometry.nodes_per_grid
     node, weight, gradient, dpos = _stencil(x, geometry)
     split, field = _fragment_fields(node + grid_id.long()[:, None] * nodes, grid_id, damage_gradient,
                                     grid.reference, split_gradient, K, nodes)
-    split_nodes = torch.nonzero(key_split := _split_nodes(grid.reference[:K], split_gradient)).flatten()
-    for tensor in (grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment):
-        tensor.view(nodes * tensor.shape[0], -1)[split_nodes] = 0.0
-    target = (field * nodes + node)[split]
+    side_b = field >= K                                                  # implies split
+    target = (field * nodes + node)[side_b]
     affine = mass[:, None, None] * C - (4.0 * dt / geometry.dx ** 2) * rest_volume[:, None, None] * stress
     momentum = weight[..., None] * (mass[:, None, None] * v[:, None, :] + torch.einsum("nij,nkj->nki", affine, dpos))
-    grid.mass.view(-1).index_add_(0, target, (weight * mass[:, None])[split])
-    grid.momentum.view(-1, 3).index_add_(0, target, momentum[split])
-    grid.mass_gradient.view(-1, 3).index_add_(0, target, (gradient * mass[:, None, None])[split])
-    grid.position_moment.view(-1, 3).index_add_(0, target, (-(weight * mass[:, None])[..., None] * dpos)[split])
-    block = key_split.view(K, geometry.n_blocks, BLOCK ** 3).any(-1).flatten()
-    side_b = (field >= K).to(torch.int64)                               # (N,27), STENCIL order: bit 9a + 3b + c
-    side_mask = (side_b << torch.arange(27, device=x.device)).sum(1).to(torch.int32)
+    grid.mass.view(-1).index_add_(0, target, (weight * mass[:, None])[side_b])
+    grid.momentum.view(-1, 3).index_add_(0, target, momentum[side_b])
+    grid.mass_gradient.view(-1, 3).index_add_(0, target, (gradient * mass[:, None, None])[side_b])
+    grid.position_moment.view(-1, 3).index_add_(0, target, (-(weight * mass[:, None])[..., None] * dpos)[side_b])
+    # Field A = P2G's sum − B where B got mass; B takes all where A would be rounding noise.
+    with_b = grid.mass[K:] != 0                                          # (K, nodes)
+    total = grid.mass[:K].clone()
+    empty_a = with_b & (total - grid.mass[K:] <= EMPTY_SIDE_SHARE * total)
+    subtract = with_b & ~empty_a
+    grid.mass[:K] = torch.where(subtract, total - grid.mass[K:], torch.where(empty_a, torch.zeros_like(total), total))
+    grid.mass[K:] = torch.where(empty_a, total, grid.mass[K:])
+    for tensor in (grid.momentum, grid.mass_gradient, grid.position_moment):
+        field_a, field_b = tensor[:K].clone(), tensor[K:].clone()
+        tensor[:K] = torch.where(subtract[..., None], field_a - field_b,
+                                 torch.where(empty_a[..., None], torch.zeros_like(field_a), field_a))
+        tensor[K:] = torch.where(empty_a[..., None], field_a, field_b)
+    block = with_b.view(K, geometry.n_blocks, BLOCK ** 3).any(-1).flatten()
+    side_mask = (side_b.to(torch.int64) << torch.arange(27, device=x.device)).sum(1).to(torch.int32)
     return split.any(1).to(torch.uint8), torch.nonzero(block).flatten().to(torch.int32), side_mask
 
 

@@ -83,7 +83,8 @@ class CollisionMPM:
         self.split_gradient = self.contact.split_gradient / self.geometry.dx  # a gradient, 1/length
         self.grid = GridFields.zeros(self.field_geometry, self.device, with_contact=self.use_contact,
                                      with_fragments=self.fragments)
-        self.last_split_particles = 0  # particles that read a split node in the latest substep
+        self._split_particle: torch.Tensor | None = None  # (N) 1: read a split node in the latest substep
+        self._damage_started = False  # some particle's fracture flag is set (flags latch: stays True)
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -128,6 +129,17 @@ class CollisionMPM:
         return state
 
     # ------------------------------------------------------------------ stepping
+    @property
+    def last_split_particles(self) -> int:
+        """Particles whose stencil reached a split node in the latest substep (0 without fragments)."""
+        return int(self._split_particle.sum()) if self._split_particle is not None else 0
+
+    @property
+    def last_split_mask(self) -> torch.Tensor | None:
+        """(N) uint8: 1 where the particle's stencil reached a split node in the latest substep, or
+        None (no node split). Cheaper to keep than ``last_split_particles`` inside a timed loop."""
+        return self._split_particle
+
     def stable_dt(self) -> float:
         """CFL time step: cfl * dx / (c_max + |v|_max)."""
         return self.cfl * self.geometry.dx / (self.max_wave_speed + self.max_speed)
@@ -140,7 +152,9 @@ class CollisionMPM:
         except RuntimeError as exc:
             raise SimulationBlowUp(f"t={s.time:.6g}s: {exc}") from None
         fields = self.field_geometry
-        partition = self.fragments and bool(s.fractured.any())  # nothing to split before any damage
+        if self.fragments and not self._damage_started:  # nothing to split before any damage
+            self._damage_started = bool(s.fractured.any())
+        partition = self.fragments and self._damage_started
         ops.p2g(bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, fields, dt, g, backend,
                 fractured=s.fractured if partition else None)
         field_bins, fragments = bins, None
@@ -158,7 +172,7 @@ class CollisionMPM:
             fragments=fragments)
         if fragments is not None:  # fields B are zero again for the next substep
             ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
-        self.last_split_particles = int(fragments.split_particle.sum()) if fragments is not None else 0
+        self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
@@ -335,6 +349,8 @@ class CollisionMPM:
                               F_E=tensors["F_E"].float(), alpha=tensors["alpha"].float(),
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
+        self._damage_started = False
+        self._split_particle = None
         # Checkpoints from before max_speed was stored: recomputed (may differ in the last bit).
         self.max_speed = (float(data["max_speed"]) if "max_speed" in data
                           else float(self.state.v.norm(dim=1).max()) if n else 0.0)
