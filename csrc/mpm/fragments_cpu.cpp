@@ -59,6 +59,24 @@ inline bool stencil_reaches_positive(const float* span, const int l[3]) {
   return (negative_lanes(-highest) & 7u) != 0;  // lanes 0-2: the stencil's nodes
 }
 
+// Bit (l0 * 4 + l1) * 4 + l2 set where the stencil with first node l in [0, 4)^3 of the span (the
+// stencils of a cell's particles) reaches a value > 0 in `span`: computed once per cell instead of
+// once per particle.
+inline uint64_t stencils_reaching_positive(const float* span) {
+  uint64_t reaching = 0;
+  for (int l0 = 0; l0 < kBlock; ++l0)
+    for (int l1 = 0; l1 < kBlock; ++l1)
+      for (int l2 = 0; l2 < kBlock; ++l2) {
+        const int l[3] = {l0, l1, l2};
+        if (stencil_reaches_positive(span, l)) reaching |= 1ull << ((l0 * kBlock + l1) * kBlock + l2);
+      }
+  return reaching;
+}
+
+inline bool stencil_bit(uint64_t table, const int l[3]) {
+  return (table >> ((l[0] * kBlock + l[1]) * kBlock + l[2])) & 1ull;
+}
+
 // Damage gradient sum_i D_i grad w_ip of a particle whose stencil starts at l in the span: the
 // formula of stencil_damage_gradient (csrc/common/mpm_fragments.h) with 4-wide rows. Per (x, y)
 // column of the stencil, its 3 nodes along z are one 4-wide load (the fourth lane, the next node of
@@ -132,18 +150,21 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       span_damage[w] = damage[node] / m;
       damaged = true;
     });
+    // A particle whose stencil reaches no damaged node has the gradient +0 exactly (the sum below,
+    // of zeros), and skips it.
+    const uint64_t reaches_damage = damaged ? stencils_reaching_positive(span_damage) : 0;
     int64_t span_keys[kSpanNodes] = {};  // the cell's largest keys, merged into the grid below
     bool any_key = false;
     for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
       const int q = bins.order[it];
       float* gq = damage_gradient + 3 * (long long)q;
-      if (!damaged) {
-        gq[0] = gq[1] = gq[2] = 0.f;
-        continue;
-      }
       AxisWeights aw[3];
       stencil_weights(x + 3 * (long long)q, geo, aw);
       const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
+      if (!stencil_bit(reaches_damage, l)) {
+        gq[0] = gq[1] = gq[2] = 0.f;
+        continue;
+      }
       span_damage_gradient(span_damage, l, aw, gq);  // D_i from the cell's span
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
@@ -176,11 +197,9 @@ struct PartitionWindow {
 };
 
 // Side mask (side_bit set where grad D_p . grad D_ref < 0) of a particle with stencil origin l in
-// the span, and whether its stencil reaches a split node at all.
-inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], const float gq[3],
-                                    bool* reaches_split) {
+// the span.
+inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], const float gq[3]) {
   uint32_t mask = 0;
-  Lane4 split_sum = {0.f, 0.f, 0.f, 0.f};
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
       const int row = ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
@@ -188,9 +207,7 @@ inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], 
                          gq[1] * load_row(win.reference_gradient[1] + row)) +
                         gq[2] * load_row(win.reference_gradient[2] + row);
       mask |= (negative_lanes(dot) & 7u) << (9 * a + 3 * b);
-      split_sum += load_row(win.split + row);
     }
-  *reaches_split = (split_sum[0] + split_sum[1] + split_sum[2]) > 0.f;
   return mask;
 }
 
@@ -201,20 +218,19 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
                     const FragmentView& frag, const int origin[3], PartitionWindow& win, uint8_t* split_particle,
                     int32_t* side_mask) {
   const float dx = geo.dx;
+  const uint64_t reaches_split = stencils_reaching_positive(win.split);
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
     const float* xq = p.x + 3 * (long long)q;
     int l[3];
     for (int d = 0; d < 3; ++d) l[d] = (int)floorf((xq[d] - geo.lower[d]) * geo.inv_dx - 0.5f) - origin[d];
+    if (!stencil_bit(reaches_split, l)) continue;  // split_particle and side_mask stay 0
+    split_particle[q] = 1;
     const float* dq = frag.damage_gradient + 3 * (long long)q;
     const float damage_gradient[3] = {dq[0], dq[1], dq[2]};
-    bool reaches_split;
-    uint32_t mask = 0;  // a zero gradient (no damage in reach) is on side A everywhere: no dot products
-    if (damage_gradient[0] != 0.f || damage_gradient[1] != 0.f || damage_gradient[2] != 0.f)
-      mask = side_mask_in_window(win, l, damage_gradient, &reaches_split);
-    else
-      reaches_split = stencil_reaches_positive(win.split, l);
-    split_particle[q] = reaches_split ? 1 : 0;
+    // A zero gradient (no damage in reach) is on side A everywhere: no dot products.
+    const bool has_gradient = damage_gradient[0] != 0.f || damage_gradient[1] != 0.f || damage_gradient[2] != 0.f;
+    const uint32_t mask = has_gradient ? side_mask_in_window(win, l, damage_gradient) : 0u;
     side_mask[q] = (int32_t)mask;
     if (mask == 0) continue;  // side A wherever it meets a split node: P2G's field A already holds it
     AxisWeights aw[3];
