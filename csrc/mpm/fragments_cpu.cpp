@@ -3,8 +3,9 @@
 // the same node, so nodes are written without atomics and the result does not depend on the
 // number of threads. Per cell, what its particles read from the grid (nodal damage, which nodes
 // are split and by which reference particle) is first copied into a small window over the 6x6x6
-// nodes their stencils can reach, and fields A and B are summed there as 8-wide records (as P2G,
-// csrc/mpm/mpm_cpu.cpp) before they are added to the grid once per cell.
+// nodes their stencils can reach, and side B is summed there as 8-wide records (as P2G,
+// csrc/mpm/mpm_cpu.cpp) before it is added to the grid once per cell; field A, which holds P2G's
+// sum, then becomes that sum minus B (fragment_merge_cpu).
 #include <algorithm>
 #include <cstring>
 #include <omp.h>
@@ -221,9 +222,10 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
   const uint64_t reaches_split = stencils_reaching_positive(win.split);
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
-    const float* xq = p.x + 3 * (long long)q;
-    int l[3];
-    for (int d = 0; d < 3; ++d) l[d] = (int)floorf((xq[d] - geo.lower[d]) * geo.inv_dx - 0.5f) - origin[d];
+    // The stencil exactly as P2G and G2P compute it (the same function, so the same first node).
+    AxisWeights aw[3];
+    stencil_weights(p.x + 3 * (long long)q, geo, aw);
+    const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
     if (!stencil_bit(reaches_split, l)) continue;  // split_particle and side_mask stay 0
     split_particle[q] = 1;
     const float* dq = frag.damage_gradient + 3 * (long long)q;
@@ -233,8 +235,6 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
     const uint32_t mask = has_gradient ? side_mask_in_window(win, l, damage_gradient) : 0u;
     side_mask[q] = (int32_t)mask;
     if (mask == 0) continue;  // side A wherever it meets a split node: P2G's field A already holds it
-    AxisWeights aw[3];
-    stencil_weights(xq, geo, aw);
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);
