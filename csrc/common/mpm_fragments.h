@@ -76,44 +76,29 @@ HOST_DEVICE inline int fragment_field(const FragmentView& f, int g, long long q,
   return g + f.n_fields * fragment_side(f.damage_gradient, q, key_particle(key));
 }
 
-// Damage gradient sum_i D_i grad w_ip of a particle with stencil aw, node_damage(a, b, c) giving
-// D_i of stencil node (a, b, c): summed along z first, per (x, y) column.
-template <class NodeDamage>
-HOST_DEVICE inline void stencil_damage_gradient(const AxisWeights aw[3], const NodeDamage& node_damage, float out[3]) {
+// Damage gradient of the particle at x on grid g: sum_i D_i grad w_ip, D_i = damage_i / mass_i
+// (0 without mass), summed along z first, per (x, y) column.
+HOST_DEVICE inline void particle_damage_gradient(const float* x, int g, const MPMGeometry& geo, const float* grid_mass,
+                                                 const float* grid_damage, float mass_eps, float out[3]) {
+  const GridShape& s = geo.shape;
+  AxisWeights aw[3];
+  stencil_weights(x, geo, aw);
+  const long long grid_offset = (long long)g * s.nodes();
   out[0] = out[1] = out[2] = 0.f;
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
-      const float d0 = node_damage(a, b, 0), d1 = node_damage(a, b, 1), d2 = node_damage(a, b, 2);
-      const float dw_sum = d0 * aw[2].dw[0] + d1 * aw[2].dw[1] + d2 * aw[2].dw[2];
-      const float w_sum = d0 * aw[2].w[0] + d1 * aw[2].w[1] + d2 * aw[2].w[2];
+      float d[3];
+      for (int c = 0; c < 3; ++c) {
+        const long long idx = grid_offset + node_index(aw[0].base + a, aw[1].base + b, aw[2].base + c, s);
+        const float m = grid_mass[idx];
+        d[c] = m > mass_eps ? grid_damage[idx] / m : 0.f;
+      }
+      const float dw_sum = d[0] * aw[2].dw[0] + d[1] * aw[2].dw[1] + d[2] * aw[2].dw[2];
+      const float w_sum = d[0] * aw[2].w[0] + d[1] * aw[2].w[1] + d[2] * aw[2].w[2];
       out[0] += aw[0].dw[a] * aw[1].w[b] * w_sum;
       out[1] += aw[0].w[a] * aw[1].dw[b] * w_sum;
       out[2] += aw[0].w[a] * aw[1].w[b] * dw_sum;
     }
-}
-
-// D_i = damage_i / mass_i of the stencil nodes of one grid (0 without mass).
-struct GridNodeDamage {
-  const float* mass;    // the object's grid
-  const float* damage;
-  const AxisWeights* aw;
-  const GridShape* shape;
-  float mass_eps;
-  HOST_DEVICE float operator()(int a, int b, int c) const {
-    const long long idx = node_index(aw[0].base + a, aw[1].base + b, aw[2].base + c, *shape);
-    const float m = mass[idx];
-    return m > mass_eps ? damage[idx] / m : 0.f;
-  }
-};
-
-// Damage gradient of the particle at x on grid g: sum_i D_i grad w_ip, D_i = damage_i / mass_i.
-HOST_DEVICE inline void particle_damage_gradient(const float* x, int g, const MPMGeometry& geo, const float* grid_mass,
-                                                 const float* grid_damage, float mass_eps, float out[3]) {
-  AxisWeights aw[3];
-  stencil_weights(x, geo, aw);
-  const long long grid_offset = (long long)g * geo.shape.nodes();
-  const GridNodeDamage node_damage{grid_mass + grid_offset, grid_damage + grid_offset, aw, &geo.shape, mass_eps};
-  stencil_damage_gradient(aw, node_damage, out);
 }
 
 // One particle's P2G contribution to stencil node (a, b, c): mass, momentum (APIC: m v + A (x_i -

@@ -79,7 +79,7 @@ inline bool stencil_bit(uint64_t table, const int l[3]) {
 }
 
 // Damage gradient sum_i D_i grad w_ip of a particle whose stencil starts at l in the span: the
-// formula of stencil_damage_gradient (csrc/common/mpm_fragments.h) with 4-wide rows. Per (x, y)
+// formula of particle_damage_gradient (csrc/common/mpm_fragments.h) with 4-wide rows. Per (x, y)
 // column of the stencil, its 3 nodes along z are one 4-wide load (the fourth lane, the next node of
 // the span, meets a zero weight), scaled by the column's x and y weight products and summed into
 // three accumulators; the z weights are applied once at the end. Tested against the torch twin.
@@ -151,9 +151,16 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       span_damage[w] = damage[node] / m;
       damaged = true;
     });
+    if (!damaged) {  // no damage anywhere in reach of the cell's particles: every gradient is +0
+      for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
+        float* gq = damage_gradient + 3 * (long long)bins.order[it];
+        gq[0] = gq[1] = gq[2] = 0.f;
+      }
+      return;
+    }
     // A particle whose stencil reaches no damaged node has the gradient +0 exactly (the sum below,
     // of zeros), and skips it.
-    const uint64_t reaches_damage = damaged ? stencils_reaching_positive(span_damage) : 0;
+    const uint64_t reaches_damage = stencils_reaching_positive(span_damage);
     int64_t span_keys[kSpanNodes] = {};  // the cell's largest keys, merged into the grid below
     bool any_key = false;
     for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
