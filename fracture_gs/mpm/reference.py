@@ -148,7 +148,7 @@ def _fragment_fields(index: torch.Tensor, grid_id: torch.Tensor, damage_gradient
                      reference_keys: torch.Tensor, split_gradient: float, n_fields: int, nodes: int):
     """Per (particle, stencil node): is the node split, and the grid (0..2K-1) the particle uses there."""
     key = reference_keys.reshape(-1)[index]                             # (N,27)
-    split = (key > 0) & ((key >> 32) >= _split_bits(split_gradient))
+    split = _split_nodes(key, split_gradient)
     ref = key & 0xFFFFFFFF
     side = ((damage_gradient[:, None, :] * damage_gradient[ref]).sum(-1) < 0) & split
     field = grid_id.long()[:, None] + n_fields * side.long()
@@ -203,8 +203,8 @@ def fragment_partition(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress
 
 
 def _split_nodes(reference_keys: torch.Tensor, split_gradient: float) -> torch.Tensor:
-    """(…) bool: nodes whose reference key names a gradient |∇D| >= split_gradient."""
-    return ((reference_keys > 0) & ((reference_keys >> 32) >= _split_bits(split_gradient))).flatten()
+    """Bool, the shape of ``reference_keys``: where the key names a gradient |∇D| >= split_gradient."""
+    return (reference_keys > 0) & ((reference_keys >> 32) >= _split_bits(split_gradient))
 
 
 def _split_bits(split_gradient: float) -> int:
