@@ -31,6 +31,7 @@ import torch
 
 from fracture_gs._backend import compiled_module
 from fracture_gs.config.scene import parse_scene
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.model_folder import write_model_folder
@@ -117,11 +118,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--views", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--device", default="cpu")
+    parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default="group",
+                        help="FPGO lens exclusive rule (render.py --exclusive)")
     args = parser.parse_args(argv)
     device = torch.device(args.device)
     with tempfile.TemporaryDirectory(prefix="bench_render_") as tmp:
         sim, frame, spacing = build(args.particles, args.fractured, Path(tmp))
-        scene = SceneGaussians.from_simulation(sim, device)
+        scene = SceneGaussians.from_simulation(sim, device, FPGOSettings(exclusive=args.exclusive))
     frame = frame.to(device)
     views = orbit_views(args.views, (0.0, 0.0, 0.0), 1.1, args.size, args.size)
     cameras = [view.camera.to(device) for view in views]
@@ -133,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
 
     result: dict = {"particles": len(sim.particles), "fractured": int(frame.fractured.sum()),
                     "size": args.size, "views": args.views, "repeats": args.repeats,
+                    "exclusive": args.exclusive,
                     "device": str(device), "compiled": compiled_module() is not None,
                     "omp_threads": int(compiled_module().openmp_max_threads()) if compiled_module() else 0,
                     "torch_threads": torch.get_num_threads(), "cpu_count": os.cpu_count()}

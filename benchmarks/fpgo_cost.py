@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from fracture_gs.cli.render import resolve_views
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.sim import Simulation
@@ -55,6 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", default=None,
                         help="a:b (b excluded); default: from the fracture onset on")
     parser.add_argument("--step", type=int, default=1, help="every step-th of those frames")
+    parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default="group",
+                        help="FPGO lens exclusive rule (render.py --exclusive)")
     args = parser.parse_args(argv)
     sim = Simulation.open(args.sim)
     onset = fracture_window_from_simulation(sim.root).onset_frame
@@ -66,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         frames = list(sim.frames)
     frames = frames[::max(args.step, 1)]
     tick = time.perf_counter()
-    scene = SceneGaussians.from_simulation(sim)
+    scene = SceneGaussians.from_simulation(sim, settings=FPGOSettings(exclusive=args.exclusive))
     bind_s = time.perf_counter() - tick
     cameras = [v.camera for v in resolve_views(f"orbit:{args.views}", sim, sim.frames,
                                                (args.size, args.size))]
@@ -101,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
 
     no_fpgo, fpgo = summary("no_fpgo_ms"), summary("fpgo_ms")
     result = {"sim": str(args.sim), "particles": len(sim.particles), "onset": onset,
-              "frames": len(rows), "views": args.views, "size": args.size,
+              "frames": len(rows), "views": args.views, "size": args.size, "exclusive": args.exclusive,
               "repeats": args.repeats, "bind_seconds": round(bind_s, 2),
               "omp_threads": os.environ.get("OMP_NUM_THREADS"),
               "torch_threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -86,7 +85,6 @@ def main(argv: list[str] | None = None) -> int:
     frames = [f for f in sim.frames if f >= onset]
     views = resolve_views(f"orbit:{args.views}", sim, frames, (args.size, args.size))
     fracture = scene.fracture
-    no_exclusive = replace(settings, exclusive=False)
     labels = ("fpgo", "fpgo_no_exclusive", "no_fpgo")
     for index in frames:
         frame = sim.load_frame(index)
@@ -94,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         hidden = small_fragment_mask(frame.x, fracture, settings, active)
         fpgo = scene.frame(frame, fpgo=True)
         rendered = {"fpgo": fpgo, "no_fpgo": scene.frame(frame, fpgo=False),
-                    "fpgo_no_exclusive": replace(fpgo, exclusive=torch.zeros_like(fpgo.exclusive))}
+                    "fpgo_no_exclusive": fpgo.without_exclusive()}
         holes = {(label, kind): 0 for label in labels for kind in ("closed", "band")}
         pixels = {"closed": 0, "band": 0}
         for view in views:

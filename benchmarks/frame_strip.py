@@ -1,6 +1,6 @@
-"""A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top row),
-optionally FPGO with lens Gaussians that are not ``exclusive`` (``--no-exclusive-row``), and
-without FPGO (bottom row), from one orbit view.
+"""A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top rows:
+one per lens exclusive rule of ``--exclusive-rows``, default the group rule; ``--no-exclusive-row``
+adds lenses that blend like all others) and without FPGO (bottom row), from one orbit view.
 
 Usage: PYTHONPATH=. python benchmarks/frame_strip.py --sim output/sims/two_spheres \
            --frames 3 5 7 10 24 --out docs/two_spheres_fpgo.png [--size 320] [--view 0]
@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from fracture_gs.cli.render import resolve_views
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
 from fracture_gs.sim import Simulation
@@ -39,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--view", type=int, default=0, help="orbit camera index (of 8)")
     parser.add_argument("--crop", type=float, default=1.0,
                         help="keep this central share of each image (zoom)")
+    parser.add_argument("--exclusive-rows", nargs="+", choices=EXCLUSIVE_RULES, default=["group"],
+                        help="one FPGO row per lens exclusive rule (render.py --exclusive)")
     parser.add_argument("--no-exclusive-row", action="store_true",
                         help="add a row: FPGO with lens Gaussians that are not exclusive")
     args = parser.parse_args(argv)
@@ -47,16 +50,18 @@ def main(argv: list[str] | None = None) -> int:
     view = resolve_views("orbit:8", sim, sim.frames, (args.size, args.size))[args.view]
     scene = SceneGaussians.from_simulation(sim)
     background = torch.ones(3)
-    variants = [("FPGO", True, True)] + \
-        ([("FPGO, lenses not exclusive", True, False)] if args.no_exclusive_row else []) + \
-        [("no FPGO", False, True)]
+    rules = list(args.exclusive_rows) + (["none"] if args.no_exclusive_row else [])
+    names = {"group": "FPGO", "all": "FPGO, global rule", "none": "FPGO, not exclusive"}
+    variants = [(names[rule], True, rule) for rule in rules] + [("no FPGO", False, "group")]
     rows = []
-    for name, fpgo, exclusive in variants:
+    for name, fpgo, rule in variants:
         tiles = []
         for index in frames:
             gaussians = scene.frame(sim.load_frame(index), fpgo=fpgo)
-            if not exclusive:
-                gaussians = replace(gaussians, exclusive=torch.zeros_like(gaussians.exclusive))
+            if rule == "none":
+                gaussians = gaussians.without_exclusive()
+            elif rule == "all":
+                gaussians = replace(gaussians, exclusive_rule="all")
             image = to_uint8(gaussians.rasterize(view.camera, background)["rgb"])
             margin = int(round(args.size * (1.0 - args.crop) / 2.0))
             image = image[margin:args.size - margin, margin:args.size - margin]

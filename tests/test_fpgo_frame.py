@@ -12,7 +12,7 @@ from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.gaussians import read_ply
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render import Camera, rasterize
-from fracture_gs.render.frame_gaussians import ModelError, SceneGaussians
+from fracture_gs.render.frame_gaussians import ModelError, SceneGaussians, read_frame_ply
 from fracture_gs.render.views import transform_camera
 from fracture_gs.sim import SimFrame, Simulation
 from render_scenes import (SPACING, block_scene, identity_frames, lattice_block, write_model,
@@ -62,7 +62,7 @@ def test_frame_zero_is_the_model_seen_through_the_scene_transform(block):
     sim, model, _, _ = block
     scene = SceneGaussians.from_simulation(sim)
     gaussians = scene.frame(sim.load_frame(0), fpgo=True)
-    assert len(gaussians) == model.num_gaussians and not gaussians.exclusive.any()
+    assert len(gaussians) == model.num_gaussians and not (gaussians.exclusive >= 0).any()
     rotation = rotation_matrix_xyz(tuple(TRANSFORM["rotate_deg"]))
     background = torch.tensor([1.0, 1.0, 1.0])
     for angle in (0.3, 2.2, 4.0):
@@ -125,8 +125,11 @@ def test_fpgo_replaces_fractured_gaussians_by_exclusive_lenses(block):
     fpgo = scene.frame(frame, fpgo=True)
     stats = fpgo.stats
     assert stats.fractured == int(frame.fractured.sum()) > 0
-    lenses = fpgo.exclusive
+    lenses = fpgo.exclusive >= 0
     assert int(lenses.sum()) == stats.lens_gaussians > 0
+    # each lens is in the exclusive group of the fractured particle whose Gaussian it replaces
+    assert torch.equal(fpgo.exclusive[lenses], fpgo.particle[lenses])
+    assert fpgo.exclusive_rule == "group" and torch.equal(fpgo.exclusive_argument(), fpgo.exclusive)
     assert torch.equal(fpgo.is_fpgo, lenses | (fpgo.is_fpgo & ~lenses))
     # every lens follows a fractured particle and sits between it and an intact neighbour
     owners = fpgo.particle[lenses]
@@ -156,12 +159,39 @@ def test_fpgo_replaces_fractured_gaussians_by_exclusive_lenses(block):
             assert fpgo.opacities[row] == base.opacities[own]
 
 
+def test_lens_exclusive_rules_and_their_ply_round_trip(block, tmp_path: Path):
+    """'group' (the default, paper §3.2.2) lies between 'none' (lenses blend like all others)
+    and 'all' (SPEC §6.1's global rule, the fewest lenses per pixel) in how much the lenses
+    cover; each rule survives write_ply / read_frame_ply."""
+    sim, _, points, _ = block
+    frame = crack_frame(sim, points, gap=0.6 * SPACING)
+    camera = orbit_camera(0.3, 64)
+    alpha = {}
+    for rule in ("group", "all", "none"):
+        gaussians = SceneGaussians.from_simulation(sim, settings=FPGOSettings(exclusive=rule)).frame(frame)
+        lenses = gaussians.exclusive >= 0
+        assert bool(lenses.any()) == (rule != "none")
+        alpha[rule] = gaussians.rasterize(camera)["alpha"]
+        path = tmp_path / f"{rule}.ply"
+        gaussians.write_ply(path)
+        model, exclusive = read_frame_ply(path)
+        assert torch.equal(exclusive, lenses if rule == "all" else gaussians.exclusive)
+    # fewer blended lenses, less coverage, up to the early stop (T < 1e-4 ends a pixel before
+    # the entry that would cross it, so a pixel may keep T up to 1e-4 / (1 - 0.99))
+    assert torch.all(alpha["all"] <= alpha["group"] + 1e-2)
+    assert torch.all(alpha["group"] <= alpha["none"] + 1e-2)
+    assert (alpha["none"] - alpha["group"]).max() > 1e-3 and (alpha["group"] - alpha["all"]).max() > 1e-3
+    assert FPGOSettings(exclusive=False).exclusive == "none"  # the earlier bool setting
+    with pytest.raises(ValueError, match="exclusive"):
+        FPGOSettings(exclusive="some")
+
+
 def test_fractured_interior_particles_get_interpolated_gaussians(tmp_path: Path):
     sim, model, points, surface = make_block(tmp_path, jitter=0.15)
     scene = SceneGaussians.from_simulation(sim, settings=FPGOSettings(k_neighbours=1))
     frame = crack_frame(sim, points, gap=3.0 * SPACING)  # too wide to find partners across
     fpgo = scene.frame(frame, fpgo=True)
-    interior = fpgo.is_fpgo & ~fpgo.exclusive
+    interior = fpgo.is_fpgo & (fpgo.exclusive < 0)
     owners = fpgo.particle[interior]
     assert interior.any() and not torch.from_numpy(surface)[owners].any()
     # appearance: inverse-distance mean of the 4 nearest surface Gaussians at rest

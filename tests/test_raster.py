@@ -18,7 +18,7 @@ WIDTH, HEIGHT = 37, 29  # not multiples of 16
 
 def _config(seed: int) -> dict:
     return {"sh_degree": [None, 0, 1, 2, 3][seed % 5], "full_covariance": seed % 2 == 1,
-            "exclusive": (seed // 2) % 2 == 1, "view_rotations": seed % 3 == 0}
+            "exclusive": [False, True, "groups"][(seed // 2) % 3], "view_rotations": seed % 3 == 0}
 
 
 def _on(scene: dict, device: str) -> dict:
@@ -236,6 +236,56 @@ def test_exclusive_keeps_only_the_nearest(backend: str) -> None:
     assert leaf.grad[1:3].abs().max() == 0 and leaf.grad[0].abs().min() > 0
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_group_exclusive_keeps_the_nearest_of_each_group(backend: str) -> None:
+    """Group rule (paper §3.2.2): of each group only the nearest member shades a pixel, other
+    groups and non-exclusive Gaussians blend as usual."""
+    camera = Camera(torch.eye(4), 30.0, 30.0, 10.0, 10.0, 20, 20)
+    means = torch.tensor([[0.0, 0.0, 2.0], [0.02, 0.0, 2.5], [0.0, 0.03, 3.0], [0.0, 0.0, 1.5],
+                          [0.01, 0.01, 2.2], [0.0, -0.02, 3.5]])
+    scales = torch.full((6, 3), 0.3)
+    quats = torch.tensor([[1.0, 0.0, 0.0, 0.0]]).repeat(6, 1)
+    opacities = torch.tensor([0.6, 0.7, 0.8, 0.3, 0.5, 0.4])
+    colors = torch.rand(6, 3, generator=torch.Generator().manual_seed(2))
+    groups = torch.tensor([4, 4, 9, -1, 9, 4])  # 4: 0 (nearest), 1, 5; 9: 4 (nearest), 2
+    grouped = rasterize(means, opacities, camera, scales=scales, quats=quats, colors=colors,
+                        exclusive=groups, backend=backend)
+    keep = torch.tensor([0, 3, 4])
+    nearest = rasterize(means[keep], opacities[keep], camera, scales=scales[keep],
+                        quats=quats[keep], colors=colors[keep], backend=backend)
+    assert torch.allclose(grouped["rgb"], nearest["rgb"], atol=1e-6)
+    assert torch.allclose(grouped["alpha"], nearest["alpha"], atol=1e-6)
+    # the global rule would keep one of groups 4 and 9 together, i.e. fewer
+    flags = rasterize(means, opacities, camera, scales=scales, quats=quats, colors=colors,
+                      exclusive=groups >= 0, backend=backend)
+    assert (grouped["alpha"] - flags["alpha"]).max() > 0.1
+    # where the nearest member of a group is transparent (alpha < 1/255), the next one shades
+    far = means.clone()
+    far[0, 0] = 3.0  # group 4's nearest member leaves the image centre
+    moved = rasterize(far, opacities, camera, scales=scales, quats=quats, colors=colors,
+                      exclusive=groups, backend=backend)
+    centre = moved["rgb"][10, 10]
+    expected = rasterize(far[[1, 3, 4]], opacities[[1, 3, 4]], camera, scales=scales[:3],
+                         quats=quats[:3], colors=colors[[1, 3, 4]], backend=backend)["rgb"][10, 10]
+    assert torch.allclose(centre, expected, atol=1e-6)
+    # gradients: the skipped members get none
+    leaf = colors.clone().requires_grad_(True)
+    out = rasterize(means, opacities, camera, scales=scales, quats=quats, colors=leaf,
+                    exclusive=groups, backend=backend)
+    out["rgb"].sum().backward()
+    assert leaf.grad[[1, 2, 5]].abs().max() == 0 and leaf.grad[[0, 3, 4]].abs().min() > 0
+
+
+def test_group_ring_links_each_group() -> None:
+    from fracture_gs.render.exclusive import group_ring
+
+    ring = group_ring(torch.tensor([3, -1, 0, 3, 3, 7, 0, -1, 9]))
+    assert ring.dtype == torch.int32
+    assert ring.tolist() == [3, -1, 6, 4, 0, 5, 2, -1, 8]
+    assert group_ring(torch.full((4,), -1)).tolist() == [-1] * 4
+    assert group_ring(torch.zeros(0, dtype=torch.int64)).numel() == 0
+
+
 @needs_cpp
 def test_backward_is_deterministic() -> None:
     scene = random_scene(3, 200, sh_degree=3)
@@ -262,8 +312,8 @@ def test_bad_input_raises() -> None:
 
 
 @needs_cpp
-@pytest.mark.parametrize("exclusive", [False, True])
-def test_saturated_pixels_match_reference(exclusive: bool) -> None:
+@pytest.mark.parametrize("exclusive", [False, True, "groups"])
+def test_saturated_pixels_match_reference(exclusive: bool | str) -> None:
     """A dense, nearly opaque scene: most pixels stop blending early (transmittance threshold),
     at different entries for neighbouring pixels; forward and gradients still match."""
     scene = random_scene(7, 300, sh_degree=2, exclusive=exclusive)
@@ -272,7 +322,7 @@ def test_saturated_pixels_match_reference(exclusive: bool) -> None:
     cpp, ref = _render_both(scene, camera)
     saturated = (1.0 - ref["alpha"]) < 1e-3
     # the early stop is actually exercised (exclusive Gaussians blend at most one per pixel)
-    assert saturated.float().mean() > (0.05 if exclusive else 0.3)
+    assert saturated.float().mean() > (0.05 if exclusive is True else 0.3)
     for key in ("rgb", "alpha", "depth"):
         assert (cpp[key].double() - ref[key]).abs().max().item() <= 1e-4, key
     weights = _loss_weights(HEIGHT, WIDTH, 7)

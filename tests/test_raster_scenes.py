@@ -18,9 +18,11 @@ def make_camera(width: int, height: int, seed: int = 0, near: float = 0.01) -> C
 
 
 def random_scene(seed: int, num: int, *, sh_degree: int | None = 1, full_covariance: bool = False,
-                 exclusive: bool = False, view_rotations: bool = False,
+                 exclusive: bool | str = False, view_rotations: bool = False,
                  dtype: torch.dtype = torch.float32) -> dict[str, torch.Tensor]:
-    """Random Gaussians around the origin as rasterize keyword arguments (plus means, opacities)."""
+    """Random Gaussians around the origin as rasterize keyword arguments (plus means, opacities).
+    exclusive: True = random global-rule flags, "groups" = random group ids (about 3 Gaussians per
+    group, 40 % in none)."""
     gen = torch.Generator().manual_seed(seed)
     means = (torch.rand(num, 3, generator=gen) * 2 - 1) * 1.2
     scales = 0.03 + 0.2 * torch.rand(num, 3, generator=gen)
@@ -46,7 +48,10 @@ def random_scene(seed: int, num: int, *, sh_degree: int | None = 1, full_covaria
             from fracture_gs.render.reference import quaternion_to_rotation
             scene["view_rotations"] = quaternion_to_rotation(q)
     scene["background"] = torch.rand(3, generator=gen)
-    if exclusive:
+    if exclusive == "groups":
+        groups = torch.randint(0, max(num // 3, 1), (num,), generator=gen)
+        scene["exclusive"] = torch.where(torch.rand(num, generator=gen) < 0.4, -1, groups)
+    elif exclusive:
         scene["exclusive"] = torch.rand(num, generator=gen) < 0.5
     return {k: (v.to(dtype) if v.is_floating_point() else v) for k, v in scene.items()}
 

@@ -67,7 +67,7 @@ def _gaussians(count: int, objects: np.ndarray) -> FrameGaussians:
         opacities=torch.rand(count, generator=generator),
         sh=torch.randn(count, 4, 3, generator=generator),
         view_rotations=torch.eye(3).expand(count, 3, 3),
-        exclusive=torch.zeros(count, dtype=torch.bool),
+        exclusive=torch.full((count,), -1, dtype=torch.int64),
         object_id=torch.as_tensor(objects, dtype=torch.int32),
         is_fpgo=torch.arange(count) == count - 1,
         particle=torch.arange(count, dtype=torch.int64) % 5)

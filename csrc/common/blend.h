@@ -54,6 +54,51 @@ HOST_DEVICE inline float splat_alpha(float u, float v, float A, float B, float C
   return a < kAlphaMax ? a : kAlphaMax;
 }
 
+// True when g_p comes before g_m in blending order: camera depth, ties by index (the order
+// of every tile list, CPU and CUDA).
+HOST_DEVICE inline bool blends_before(float depth_p, int32_t p, float depth_m, int32_t m) {
+  return depth_p < depth_m || (depth_p == depth_m && p < m);
+}
+
+// Group exclusive rule (raster_kernels.h ExclusiveRule): per Gaussian m of a group, for one
+// camera, the member of its group that comes before it in blending order when there is exactly
+// one, kNoEarlierMember when none, kSeveralEarlierMembers otherwise. next: the group ring
+// (next[m] >= 0); proj: all projected Gaussians.
+constexpr int32_t kNoEarlierMember = -1;
+constexpr int32_t kSeveralEarlierMembers = -2;
+
+HOST_DEVICE inline int32_t earlier_group_member(const float* proj, const int32_t* next, int32_t m) {
+  const float depth_m = proj[(int64_t)kProjStride * m + kDepth];
+  int32_t found = kNoEarlierMember;
+  for (int32_t p = next[m]; p != m && p >= 0; p = next[p]) {
+    if (!blends_before(proj[(int64_t)kProjStride * p + kDepth], p, depth_m, m)) continue;
+    if (found != kNoEarlierMember) return kSeveralEarlierMembers;
+    found = p;
+  }
+  return found;
+}
+
+// Whether a member of Gaussian m's group that comes before m has alpha >= 1/255 at the pixel
+// centre (px, py); m is then skipped there. earlier: earlier_group_member of every Gaussian.
+// Culled Gaussians have zero proj (alpha 0).
+HOST_DEVICE inline bool earlier_group_member_blends(const float* proj, const int32_t* next,
+                                                    const int32_t* earlier, int32_t m, float px,
+                                                    float py) {
+  const int32_t one = earlier[m];
+  if (one == kNoEarlierMember) return false;
+  const float depth_m = proj[(int64_t)kProjStride * m + kDepth];
+  for (int32_t p = one >= 0 ? one : next[m]; p != m && p >= 0; p = next[p]) {
+    const float* g = proj + (int64_t)kProjStride * p;
+    if (!blends_before(g[kDepth], p, depth_m, m)) continue;
+    float G;
+    if (splat_alpha(g[kU], g[kV], g[kConicA], g[kConicB], g[kConicC], g[kOpacity], px, py, G) >=
+        kAlphaMin)
+      return true;
+    if (one >= 0) return false;  // the only earlier member
+  }
+  return false;
+}
+
 // Given dL/dalpha at one pixel, the gradients on (u, v, A, B, C, opacity), added to acc[6].
 HOST_DEVICE inline void splat_alpha_backward(float u, float v, float A, float B, float C,
                                              float opacity, float px, float py, float G,

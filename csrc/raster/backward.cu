@@ -16,12 +16,13 @@ constexpr int kBlock = kTileSize * kTileSize;
 constexpr int kWarps = kBlock / 32;
 
 __global__ void __launch_bounds__(kBlock)
-    render_backward_kernel(CameraParams cam, const float* proj, const uint8_t* exclusive,
+    render_backward_kernel(CameraParams cam, const float* proj, ExclusiveRule exclusive,
                            TileBins bins, float bg_r, float bg_g, float bg_b, PixelState state,
                            const float* grad_rgb, const float* grad_alpha,
                            const float* grad_depth, float* slot_grads) {
   __shared__ float s_proj[kBlock * kProjStride];
-  __shared__ int32_t s_excl[kBlock];
+  __shared__ int32_t s_excl[kBlock];  // 1: exclusive under the global rule, 2: in a group
+  __shared__ int32_t s_gid[kBlock];
   __shared__ int32_t s_slot[kBlock];
   __shared__ float s_partial[kWarps][kSlotStride];
   __shared__ int32_t s_max_contrib;
@@ -57,7 +58,9 @@ __global__ void __launch_bounds__(kBlock)
       const int32_t gid = bins.slot_gaussian[slot];
       for (int f = 0; f < kProjStride; ++f)
         s_proj[threadIdx.x * kProjStride + f] = proj[(int64_t)kProjStride * gid + f];
-      s_excl[threadIdx.x] = exclusive ? (int32_t)exclusive[gid] : 0;
+      s_excl[threadIdx.x] = exclusive.flags ? (int32_t)exclusive.flags[gid]
+                            : (exclusive.next && exclusive.next[gid] >= 0 ? 2 : 0);
+      s_gid[threadIdx.x] = gid;
       s_slot[threadIdx.x] = slot;
     }
     __syncthreads();
@@ -71,8 +74,10 @@ __global__ void __launch_bounds__(kBlock)
                           ? splat_alpha(g[kU], g[kV], g[kConicA], g[kConicB], g[kConicC],
                                         g[kOpacity], px, py, G)
                           : 0.f;
-      const bool active = (pos < n_contrib) && (a >= kAlphaMin) &&
-                          (s_excl[j] == 0 || winner == pos);
+      const bool active =
+          (pos < n_contrib) && (a >= kAlphaMin) &&
+          (s_excl[j] == 0 || (s_excl[j] == 1 && winner == pos) ||
+           (s_excl[j] == 2 && !earlier_group_member_blends(proj, exclusive.next, exclusive.earlier, s_gid[j], px, py)));
       if (active) {
         const float one_minus = 1.f - a;
         const float T_before = T / one_minus;
@@ -111,7 +116,7 @@ __global__ void preprocess_backward_kernel(CameraParams cam, GaussianInputs in,
 
 }  // namespace
 
-void render_backward_cuda(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void render_backward_cuda(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                           const TileBins& bins, const float* background, const PixelState& state,
                           const float* grad_rgb, const float* grad_alpha, const float* grad_depth,
                           float* slot_grads, void* stream) {

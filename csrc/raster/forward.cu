@@ -60,11 +60,12 @@ __global__ void tile_start_kernel(int64_t total, int num_tiles, const uint64_t* 
 }
 
 __global__ void __launch_bounds__(kBlock)
-    render_forward_kernel(CameraParams cam, const float* proj, const uint8_t* exclusive,
+    render_forward_kernel(CameraParams cam, const float* proj, ExclusiveRule exclusive,
                           TileBins bins, float bg_r, float bg_g, float bg_b, float* rgb,
                           float* alpha, float* depth, PixelState state) {
   __shared__ float s_proj[kBlock * kProjStride];
-  __shared__ int32_t s_excl[kBlock];
+  __shared__ int32_t s_excl[kBlock];  // 1: exclusive under the global rule, 2: in a group
+  __shared__ int32_t s_gid[kBlock];
   const int tile = blockIdx.x;
   const int x = (tile % bins.tiles_x) * kTileSize + (int)(threadIdx.x % kTileSize);
   const int y = (tile / bins.tiles_x) * kTileSize + (int)(threadIdx.x / kTileSize);
@@ -81,18 +82,22 @@ __global__ void __launch_bounds__(kBlock)
       const int32_t gid = bins.slot_gaussian[bins.tile_slots[k]];
       for (int f = 0; f < kProjStride; ++f)
         s_proj[threadIdx.x * kProjStride + f] = proj[(int64_t)kProjStride * gid + f];
-      s_excl[threadIdx.x] = exclusive ? (int32_t)exclusive[gid] : 0;
+      s_excl[threadIdx.x] = exclusive.flags ? (int32_t)exclusive.flags[gid]
+                            : (exclusive.next && exclusive.next[gid] >= 0 ? 2 : 0);
+      s_gid[threadIdx.x] = gid;
     }
     __syncthreads();
     const int count = min(kBlock, end - batch);
     for (int j = 0; j < count && !done; ++j) {
       const float* g = s_proj + j * kProjStride;
-      const bool excl = s_excl[j] != 0;
+      const bool excl = s_excl[j] == 1;
       if (excl && taken) continue;  // one exclusive Gaussian per pixel: skip the others unseen
       float G;
       const float a = splat_alpha(g[kU], g[kV], g[kConicA], g[kConicB], g[kConicC], g[kOpacity],
                                   px, py, G);
       if (a < kAlphaMin) continue;
+      if (s_excl[j] == 2 && earlier_group_member_blends(proj, exclusive.next, exclusive.earlier, s_gid[j], px, py))
+        continue;  // an earlier member of its group shades this pixel
       const float test_T = T * (1.f - a);
       if (test_T < kTransmittanceMin) { done = true; continue; }
       const float w = a * T;
@@ -113,6 +118,13 @@ __global__ void __launch_bounds__(kBlock)
   state.final_T[pix] = T;
   state.n_contrib[pix] = n_contrib;
   state.exclusive_winner[pix] = winner;
+}
+
+__global__ void group_earlier_kernel(int64_t num, const float* proj, const int32_t* next,
+                                     int32_t* earlier) {
+  const int64_t i = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
+  if (i < num)
+    earlier[i] = next[i] >= 0 ? earlier_group_member(proj, next, (int32_t)i) : kNoEarlierMember;
 }
 
 inline unsigned blocks_for(int64_t n, int threads) { return (unsigned)((n + threads - 1) / threads); }
@@ -187,7 +199,14 @@ void bin_cuda(const CameraParams& cam, int64_t num, const float* proj, const int
   }
 }
 
-void render_forward_cuda(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void group_earlier_cuda(int64_t num, const float* proj, const int32_t* next, int32_t* earlier,
+                        void* stream) {
+  if (num == 0) return;
+  group_earlier_kernel<<<blocks_for(num, 256), 256, 0, (cudaStream_t)stream>>>(num, proj, next,
+                                                                              earlier);
+}
+
+void render_forward_cuda(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                          const TileBins& bins, const float* background, float* rgb, float* alpha,
                          float* depth, const PixelState& state, void* stream) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;

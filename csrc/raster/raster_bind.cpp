@@ -58,7 +58,7 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
                            const OptTensor& scales, const OptTensor& quats,
                            const OptTensor& covariances, const OptTensor& sh,
                            const OptTensor& colors, const OptTensor& exclusive,
-                           const OptTensor& view_rotations) {
+                           const OptTensor& exclusive_next, const OptTensor& view_rotations) {
   const torch::Device device = means.device();
   check_float(means, "means", device);
   check_float(opacities, "opacities", device);
@@ -93,22 +93,48 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
     TORCH_CHECK(exclusive->scalar_type() == torch::kUInt8 && exclusive->is_contiguous() &&
                     exclusive->device() == device,
                 "rasterize: exclusive must be a contiguous uint8 tensor on the means' device");
-    in.exclusive = exclusive->data_ptr<uint8_t>();
+    in.exclusive.flags = exclusive->data_ptr<uint8_t>();
+  }
+  if (exclusive_next.has_value()) {
+    TORCH_CHECK(!exclusive.has_value(), "rasterize: give exclusive flags or groups, not both");
+    TORCH_CHECK(exclusive_next->scalar_type() == torch::kInt32 && exclusive_next->is_contiguous() &&
+                    exclusive_next->device() == device && exclusive_next->numel() == in.num,
+                "rasterize: exclusive_next must be a contiguous int32 (N,) tensor on the means' device");
+    in.exclusive.next = exclusive_next->data_ptr<int32_t>();
   }
   return in;
 }
 
+// The exclusive rule of `in` for the kernels; for the group rule with its per-camera summary
+// (ExclusiveRule::earlier), computed from proj into `earlier` (which must outlive the rule).
+raster::ExclusiveRule exclusive_rule(const GaussianInputs& in, const torch::Tensor& proj,
+                                     torch::Tensor& earlier) {
+  raster::ExclusiveRule rule = in.exclusive;
+  if (rule.next == nullptr) return rule;
+  earlier = torch::empty({in.num}, proj.options().dtype(torch::kInt32));
+  if (proj.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    raster::group_earlier_cuda(in.num, proj.data_ptr<float>(), rule.next,
+                               earlier.data_ptr<int32_t>(), current_cuda_stream());
+#endif
+  } else {
+    raster::group_earlier_cpu(in.num, proj.data_ptr<float>(), rule.next, earlier.data_ptr<int32_t>());
+  }
+  rule.earlier = earlier.data_ptr<int32_t>();
+  return rule;
+}
 
 // Returns (rgb, alpha, depth, radii, proj, slot_offset, tile_start, tile_slots,
 // slot_gaussian, final_T, n_contrib, exclusive_winner).
 std::vector<torch::Tensor> raster_forward(
     const torch::Tensor& means, const torch::Tensor& opacities, const OptTensor& scales,
     const OptTensor& quats, const OptTensor& covariances, const OptTensor& sh,
-    const OptTensor& colors, const OptTensor& exclusive, const OptTensor& view_rotations,
+    const OptTensor& colors, const OptTensor& exclusive, const OptTensor& exclusive_next,
+    const OptTensor& view_rotations,
     const torch::Tensor& background, const torch::Tensor& world_to_camera, double fx, double fy,
     double cx, double cy, int64_t width, int64_t height, double near_plane) {
   const GaussianInputs in = make_inputs(means, opacities, scales, quats, covariances, sh, colors,
-                                        exclusive, view_rotations);
+                                        exclusive, exclusive_next, view_rotations);
   const CameraParams cam = make_camera(world_to_camera, fx, fy, cx, cy, width, height, near_plane);
   const torch::Tensor bg = background.to(torch::kCPU, torch::kFloat32).contiguous();
   TORCH_CHECK(bg.numel() == 3, "rasterize: background must have 3 values");
@@ -130,7 +156,7 @@ std::vector<torch::Tensor> raster_forward(
   torch::Tensor winner = torch::empty({height, width}, iopt);
   raster::PixelState state{final_T.data_ptr<float>(), n_contrib.data_ptr<int32_t>(),
                            winner.data_ptr<int32_t>()};
-  torch::Tensor tile_slots, slot_gaussian;
+  torch::Tensor tile_slots, slot_gaussian, earlier;
   if (means.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     void* stream = current_cuda_stream();
@@ -154,7 +180,7 @@ std::vector<torch::Tensor> raster_forward(
                      sort_scratch.data_ptr(), sort_bytes, stream);
     const raster::TileBins bins{tiles_x, tiles_y, tile_start.data_ptr<int32_t>(),
                                 tile_slots.data_ptr<int32_t>(), slot_gaussian.data_ptr<int32_t>()};
-    raster::render_forward_cuda(cam, proj.data_ptr<float>(), in.exclusive, bins, bg.data_ptr<float>(),
+    raster::render_forward_cuda(cam, proj.data_ptr<float>(), exclusive_rule(in, proj, earlier), bins, bg.data_ptr<float>(),
                                 rgb.data_ptr<float>(), alpha.data_ptr<float>(),
                                 depth.data_ptr<float>(), state, stream);
 #else
@@ -172,7 +198,7 @@ std::vector<torch::Tensor> raster_forward(
                     tile_slots.data_ptr<int32_t>(), slot_gaussian.data_ptr<int32_t>());
     const raster::TileBins bins{tiles_x, tiles_y, tile_start.data_ptr<int32_t>(),
                                 tile_slots.data_ptr<int32_t>(), slot_gaussian.data_ptr<int32_t>()};
-    raster::render_forward_cpu(cam, proj.data_ptr<float>(), in.exclusive, bins, bg.data_ptr<float>(),
+    raster::render_forward_cpu(cam, proj.data_ptr<float>(), exclusive_rule(in, proj, earlier), bins, bg.data_ptr<float>(),
                                rgb.data_ptr<float>(), alpha.data_ptr<float>(),
                                depth.data_ptr<float>(), state);
   }
@@ -185,7 +211,8 @@ std::vector<torch::Tensor> raster_forward(
 std::vector<torch::Tensor> raster_backward(
     const torch::Tensor& means, const torch::Tensor& opacities, const OptTensor& scales,
     const OptTensor& quats, const OptTensor& covariances, const OptTensor& sh,
-    const OptTensor& colors, const OptTensor& exclusive, const OptTensor& view_rotations,
+    const OptTensor& colors, const OptTensor& exclusive, const OptTensor& exclusive_next,
+    const OptTensor& view_rotations,
     const torch::Tensor& background, const torch::Tensor& world_to_camera, double fx, double fy,
     double cx, double cy, int64_t width, int64_t height, double near_plane,
     const torch::Tensor& proj, const torch::Tensor& slot_offset, const torch::Tensor& tile_start,
@@ -194,7 +221,7 @@ std::vector<torch::Tensor> raster_backward(
     const torch::Tensor& grad_rgb, const torch::Tensor& grad_alpha,
     const torch::Tensor& grad_depth) {
   const GaussianInputs in = make_inputs(means, opacities, scales, quats, covariances, sh, colors,
-                                        exclusive, view_rotations);
+                                        exclusive, exclusive_next, view_rotations);
   const CameraParams cam = make_camera(world_to_camera, fx, fy, cx, cy, width, height, near_plane);
   const torch::Tensor bg = background.to(torch::kCPU, torch::kFloat32).contiguous();
   const torch::Device device = means.device();
@@ -219,10 +246,11 @@ std::vector<torch::Tensor> raster_backward(
   const raster::PixelState state{const_cast<float*>(final_T.data_ptr<float>()),
                                  const_cast<int32_t*>(n_contrib.data_ptr<int32_t>()),
                                  const_cast<int32_t*>(winner.data_ptr<int32_t>())};
+  torch::Tensor earlier;
   if (means.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     void* stream = current_cuda_stream();
-    raster::render_backward_cuda(cam, proj.data_ptr<float>(), in.exclusive, bins, bg.data_ptr<float>(),
+    raster::render_backward_cuda(cam, proj.data_ptr<float>(), exclusive_rule(in, proj, earlier), bins, bg.data_ptr<float>(),
                                  state, grad_rgb.data_ptr<float>(), grad_alpha.data_ptr<float>(),
                                  grad_depth.data_ptr<float>(), slot_grads.data_ptr<float>(), stream);
     raster::preprocess_backward_cuda(cam, in, proj.data_ptr<float>(), slot_offset.data_ptr<int64_t>(),
@@ -231,7 +259,7 @@ std::vector<torch::Tensor> raster_backward(
     TORCH_CHECK(false, "rasterize: fracture_gs._C was built without CUDA kernels");
 #endif
   } else {
-    raster::render_backward_cpu(cam, proj.data_ptr<float>(), in.exclusive, bins, bg.data_ptr<float>(),
+    raster::render_backward_cpu(cam, proj.data_ptr<float>(), exclusive_rule(in, proj, earlier), bins, bg.data_ptr<float>(),
                                 state, grad_rgb.data_ptr<float>(), grad_alpha.data_ptr<float>(),
                                 grad_depth.data_ptr<float>(), slot_grads.data_ptr<float>());
     raster::preprocess_backward_cpu(cam, in, proj.data_ptr<float>(), slot_offset.data_ptr<int64_t>(),

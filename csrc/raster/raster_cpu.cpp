@@ -130,11 +130,11 @@ constexpr int kQuad = kTileSize / 2;  // pixels are processed in 8x8 quarters of
 // transparent entries; pos is the position in the tile's list.
 struct TileList {
   std::vector<float> u, v, A, B, C, opacity, red, green, blue, depth, ex, ey;
-  std::vector<int32_t> exclusive, pos;
+  std::vector<int32_t> exclusive, pos, gid;  // exclusive: 1 for a flagged / grouped Gaussian
   int32_t size = 0;
 
   // All Gaussians of a tile.
-  void gather(const TileBins& bins, int tile, const float* proj, const uint8_t* excl) {
+  void gather(const TileBins& bins, int tile, const float* proj, const ExclusiveRule& excl) {
     const int32_t begin = bins.tile_start[tile];
     reset(bins.tile_start[tile + 1] - begin);
     constexpr int32_t kAhead = 8;  // two-stage software prefetch of the random-order reads
@@ -142,13 +142,14 @@ struct TileList {
       if (k + 2 * kAhead < size) __builtin_prefetch(bins.slot_gaussian + bins.tile_slots[begin + k + 2 * kAhead]);
       if (k + kAhead < size)
         __builtin_prefetch(proj + (int64_t)kProjStride * bins.slot_gaussian[bins.tile_slots[begin + k + kAhead]]);
-      const int32_t gid = bins.slot_gaussian[bins.tile_slots[begin + k]];
-      const float* g = proj + (int64_t)kProjStride * gid;
+      const int32_t id = bins.slot_gaussian[bins.tile_slots[begin + k]];
+      const float* g = proj + (int64_t)kProjStride * id;
       u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
       opacity[k] = g[kOpacity]; red[k] = g[kRed]; green[k] = g[kGreen]; blue[k] = g[kBlue];
       depth[k] = g[kDepth]; ex[k] = g[kExtentX]; ey[k] = g[kExtentY];
-      exclusive[k] = (excl && excl[gid]) ? 1 : 0;
+      exclusive[k] = excl.flags ? (excl.flags[id] ? 1 : 0) : (excl.next && excl.next[id] >= 0 ? 1 : 0);
       pos[k] = k;
+      gid[k] = id;
     }
     pad();
   }
@@ -166,7 +167,7 @@ struct TileList {
       C[n] = tile.C[k]; opacity[n] = tile.opacity[k]; red[n] = tile.red[k];
       green[n] = tile.green[k]; blue[n] = tile.blue[k]; depth[n] = tile.depth[k];
       ex[n] = tile.ex[k]; ey[n] = tile.ey[k]; exclusive[n] = tile.exclusive[k];
-      pos[n] = tile.pos[k];
+      pos[n] = tile.pos[k]; gid[n] = tile.gid[k];
       ++n;
     }
     size = n;
@@ -179,7 +180,7 @@ struct TileList {
     const size_t padded = (size_t)(count + kBatch - 1) / kBatch * kBatch;
     for (auto* vec : {&u, &v, &A, &B, &C, &opacity, &red, &green, &blue, &depth, &ex, &ey})
       if (vec->size() < padded) vec->resize(padded);
-    if (exclusive.size() < padded) { exclusive.resize(padded); pos.resize(padded); }
+    if (exclusive.size() < padded) { exclusive.resize(padded); pos.resize(padded); gid.resize(padded); }
   }
   void pad() {  // transparent entries up to the next multiple of kBatch
     for (int32_t k = size; k % kBatch; ++k) {
@@ -187,6 +188,7 @@ struct TileList {
       red[k] = green[k] = blue[k] = depth[k] = ex[k] = ey[k] = 0.f;
       exclusive[k] = 0;
       pos[k] = -1;
+      gid[k] = -1;
     }
   }
 };
@@ -267,25 +269,114 @@ inline LaneF splat_alpha_lanes(float u, float v, float A, float B, float C, floa
   return a < kAlphaMax ? a : lanes_of(kAlphaMax);
 }
 
+// The group rule (ExclusiveRule) of a tile's list: for every grouped entry with exactly one
+// earlier member in its group (FPGO's pairs of lenses), that member's projected parameters (for
+// the backward) and its position in the tile's list (for the forward, which has just evaluated
+// that member's alpha on the same row: see usable); entries with several earlier members walk
+// the ring per row.
+struct EarlierMembers {
+  std::vector<float> u, v, A, B, C, opacity;
+  std::vector<int32_t> one;      // earlier_group_member of the entry's Gaussian (or kNoEarlierMember)
+  std::vector<int32_t> partner;  // one >= 0: tile-list position of that member, -1: not in the list
+  // Forward: per tile-list position of a grouped entry, its alpha >= 1/255 lanes on the row with
+  // serial number usable_row (a member absent from a row has alpha < 1/255 on all of it).
+  std::vector<LaneI, AlignedAllocator<LaneI>> usable;
+  std::vector<int64_t> usable_row;
+
+  void fill(const TileList& tile, const float* proj, const ExclusiveRule& rule) {
+    const size_t n = (size_t)tile.size;
+    for (auto* vec : {&u, &v, &A, &B, &C, &opacity})
+      if (vec->size() < n) vec->resize(n);
+    if (one.size() < n) { one.resize(n); partner.resize(n); usable.resize(n); }
+    usable_row.assign(n, -1);
+    for (int32_t k = 0; k < tile.size; ++k) {
+      one[k] = tile.exclusive[k] ? rule.earlier[tile.gid[k]] : kNoEarlierMember;
+      if (one[k] < 0) continue;
+      const float* g = proj + (int64_t)kProjStride * one[k];
+      u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
+      opacity[k] = g[kOpacity];
+      partner[k] = position_in(tile, g[kDepth], one[k]);
+    }
+  }
+
+  // Position of Gaussian p (camera depth `depth`) in the tile's list, sorted by (depth, index);
+  // -1 when it is not there.
+  static int32_t position_in(const TileList& tile, float depth, int32_t p) {
+    int32_t lo = 0, hi = tile.size;
+    while (lo < hi) {
+      const int32_t mid = (lo + hi) / 2;
+      if (blends_before(tile.depth[mid], tile.gid[mid], depth, p)) lo = mid + 1; else hi = mid;
+    }
+    return lo < tile.size && tile.gid[lo] == p ? lo : -1;
+  }
+
+  // earlier_group_member_blends (common/blend.h) on every lane for the entry at tile-list
+  // position k (Gaussian m): -1 where an earlier member has alpha >= 1/255 at the lane's pixel.
+  LaneI blocked(int32_t k, const ExclusiveRule& rule, const float* proj, int32_t m, LaneF px,
+                float py) const {
+    LaneF G;
+    if (one[k] >= 0)
+      return splat_alpha_lanes(u[k], v[k], A[k], B[k], C[k], opacity[k], px, py, G) >= kAlphaMin;
+    LaneI out{};
+    if (one[k] == kSeveralEarlierMembers) {
+      const float depth_m = proj[(int64_t)kProjStride * m + kDepth];
+      for (int32_t p = rule.next[m]; p != m && p >= 0; p = rule.next[p]) {
+        const float* g = proj + (int64_t)kProjStride * p;
+        if (!blends_before(g[kDepth], p, depth_m, m)) continue;
+        out |= splat_alpha_lanes(g[kU], g[kV], g[kConicA], g[kConicB], g[kConicC], g[kOpacity],
+                                 px, py, G) >= kAlphaMin;
+      }
+    }
+    return out;
+  }
+
+  // Forward: records the alpha >= 1/255 lanes of the grouped entry at tile-list position k on
+  // row `row` and returns blocked(...) for it (when `wanted`), reading a single earlier member's
+  // lanes from what was recorded on this row.
+  LaneI record_and_block(int32_t k, int64_t row, LaneI usable_lanes, bool wanted,
+                         const ExclusiveRule& rule, const float* proj, int32_t m, LaneF px,
+                         float py) {
+    usable[k] = usable_lanes;
+    usable_row[k] = row;
+    if (!wanted || one[k] == kNoEarlierMember) return LaneI{};
+    if (one[k] >= 0) {
+      const int32_t q = partner[k];
+      return q >= 0 && usable_row[q] == row ? usable[q] : LaneI{};
+    }
+    return blocked(k, rule, proj, m, px, py);
+  }
+};
+
 }  // namespace
+
+void group_earlier_cpu(int64_t num, const float* proj, const int32_t* next, int32_t* earlier) {
+#pragma omp parallel for schedule(static) if (num >= kParallelGaussians)
+  for (int64_t i = 0; i < num; ++i)
+    earlier[i] = next[i] >= 0 ? earlier_group_member(proj, next, (int32_t)i) : kNoEarlierMember;
+}
 
 // Each quarter row of 8 pixels walks its quarter's list front to back with one SIMD lane per
 // pixel; a lane stops (like one CUDA thread) once its transmittance would fall below the
 // threshold, and the row stops once all its lanes have. Per pixel, the operations and their
 // order are exactly those of the one-pixel-at-a-time loop (inactive lanes add zeros).
-void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void render_forward_cpu(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                         const TileBins& bins, const float* background, float* rgb, float* alpha,
                         float* depth, const PixelState& state) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
+  const bool group_rule = exclusive.next != nullptr;
 #pragma omp parallel if (num_tiles >= kParallelTiles)
   {
     TileList tile_list, quarter;
+    EarlierMembers earlier;
+    int64_t row_serial = 0;  // numbers every quarter row this thread processes
 #pragma omp for schedule(dynamic, 1)
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
       tile_list.gather(bins, tile, proj, exclusive);
+      if (group_rule) earlier.fill(tile_list, proj, exclusive);
       for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
           const float py = (float)(geo.y0 + row) + 0.5f;
+          ++row_serial;
           LaneF px, T = lanes_of(1.f), acc_r{}, acc_g{}, acc_b{}, acc_d{};
           LaneI n_contrib{}, winner = LaneI{} - 1, taken{}, done{};  // masks are 0 / -1
           for (int l = 0; l < kLanes; ++l) {
@@ -296,14 +387,19 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
             // every few entries: stop once every lane has saturated
             if ((e & 3) == 0 && !any_lane(~done)) break;
             if (misses_row(list, e, py)) continue;
-            const LaneI excl = LaneI{} - list.exclusive[e];
-            // an exclusive entry cannot blend where every open lane has taken one already
-            if (list.exclusive[e] && !any_lane(~done & ~taken)) continue;
+            const bool global_excl = list.exclusive[e] && !group_rule;
+            const LaneI excl = LaneI{} - (global_excl ? 1 : 0);
+            // a global-rule exclusive entry cannot blend where every open lane has taken one
+            if (global_excl && !any_lane(~done & ~taken)) continue;
             LaneF G;
             const LaneF a = splat_alpha_lanes(list.u[e], list.v[e], list.A[e], list.B[e], list.C[e],
                                               list.opacity[e], px, py, G);
             const LaneF test_T = T * (1.f - a);
-            const LaneI candidate = ~done & (a >= kAlphaMin) & ~(excl & taken);
+            LaneI candidate = ~done & (a >= kAlphaMin) & ~(excl & taken);
+            if (group_rule && list.exclusive[e])
+              candidate &= ~earlier.record_and_block(list.pos[e], row_serial, a >= kAlphaMin,
+                                                     any_lane(candidate), exclusive, proj,
+                                                     list.gid[e], px, py);
             const LaneI stop = candidate & (test_T < kTransmittanceMin);
             if (!any_lane(candidate)) continue;
             const LaneI blend = candidate & ~stop;
@@ -337,14 +433,16 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_
 // n_contrib, alpha >= 1/255, the winning exclusive one). Each entry's gradients are summed per
 // lane over the tile's pixels in a fixed order, then over the lanes, and written to the entry's
 // (Gaussian, tile) slot: no atomics, the same bits for any thread count.
-void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void render_backward_cpu(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                          const TileBins& bins, const float* background, const PixelState& state,
                          const float* grad_rgb, const float* grad_alpha, const float* grad_depth,
                          float* slot_grads) {
   const int num_tiles = bins.tiles_x * bins.tiles_y;
+  const bool group_rule = exclusive.next != nullptr;
 #pragma omp parallel if (num_tiles >= kParallelTiles)
   {
     TileList tile_list, quarter;
+    EarlierMembers earlier;
     // per tile-list entry: kSlotStride fields x kLanes lanes, summed over the tile's rows
     std::vector<float, AlignedAllocator<float>> lane_grads;
 #pragma omp for schedule(dynamic, 1)
@@ -353,6 +451,7 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
       const int32_t begin = bins.tile_start[tile], count = bins.tile_start[tile + 1] - begin;
       lane_grads.assign((size_t)count * kSlotStride * kLanes, 0.f);
       tile_list.gather(bins, tile, proj, exclusive);
+      if (group_rule) earlier.fill(tile_list, proj, exclusive);
       for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
           const float py = (float)(geo.y0 + row) + 0.5f;
           LaneF px, T = lanes_of(1.f), tail{}, g_r{}, g_g{}, g_b{}, g_d{};
@@ -383,8 +482,13 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8
             const int32_t pos = list.pos[e];
             LaneF G;
             const LaneF a = splat_alpha_lanes(u, v, A, B, C, o, px, py, G);
-            const LaneI taken = (pos < n_contrib) & (a >= kAlphaMin) &
-                                ((list.exclusive[e] == 0 ? LaneI{} - 1 : LaneI{}) | (winner == pos));
+            LaneI taken = (pos < n_contrib) & (a >= kAlphaMin);
+            if (list.exclusive[e]) {
+              if (!group_rule)
+                taken &= winner == pos;
+              else if (any_lane(taken))
+                taken &= ~earlier.blocked(list.pos[e], exclusive, proj, list.gid[e], px, py);
+            }
             if (!any_lane(taken)) continue;  // e.g. outside the ellipse on this whole row
             const LaneF inv_one_minus = 1.f / (1.f - a);
             const LaneF T_before = T * inv_one_minus;

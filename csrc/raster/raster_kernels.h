@@ -7,7 +7,8 @@
 //      [slot_offset[i], slot_offset[i+1]), one per touched tile.
 //   2. bin: list the slots of every tile, sorted front to back by (camera depth, index).
 //   3. render_forward: blend each tile's list per pixel; keeps per pixel the final
-//      transmittance, how many list entries were processed and which exclusive Gaussian won.
+//      transmittance, how many list entries were processed and (global exclusive rule) which
+//      exclusive Gaussian won.
 //   4. render_backward: reverse traversal per pixel; each (Gaussian, tile) slot gets the sum
 //      of its pixel gradients (no atomics, deterministic).
 //   5. preprocess_backward: per Gaussian, sum its slots in a fixed order and chain the
@@ -20,8 +21,25 @@
 namespace fgs {
 namespace raster {
 
+// Which Gaussians may blend at a pixel besides the 3DGS rules (SPEC §6.1 'exclusive').
+// * flags (global rule, the SPEC's bool): of all Gaussians flagged 1, only the nearest one with
+//   alpha >= 1/255 blends at a pixel.
+// * next (group rule, paper §3.2.2: the lenses that replace one g_i): next[i] is the next
+//   member of i's group in a ring (i itself for a group of one), -1 for Gaussians in no group;
+//   of each group only the nearest member with alpha >= 1/255 blends at a pixel, members of
+//   different groups blend as usual. Stateless: a member is skipped where an earlier member
+//   of its group (in blending order, camera depth then index) has alpha >= 1/255.
+// At most one of them is non-null.
+struct ExclusiveRule {
+  const uint8_t* flags = nullptr;
+  const int32_t* next = nullptr;
+  // Group rule, per camera: earlier_group_member (common/blend.h) of every Gaussian, filled by
+  // group_earlier_cpu / _cuda after preprocess (the binding does it).
+  const int32_t* earlier = nullptr;
+};
+
 // Per-Gaussian inputs. Exactly one of (scales, quats) / covariances and one of sh / colors
-// is non-null; exclusive and view_rotations may be null.
+// is non-null; view_rotations may be null.
 struct GaussianInputs {
   int64_t num = 0;
   const float* means = nullptr;           // (N, 3)
@@ -32,7 +50,7 @@ struct GaussianInputs {
   const float* sh = nullptr;              // (N, K, 3), K = (sh_degree + 1)²
   int sh_degree = 0;
   const float* colors = nullptr;          // (N, 3)
-  const uint8_t* exclusive = nullptr;     // (N,) 0/1
+  ExclusiveRule exclusive;                // (N,) each; both null: no exclusive Gaussians
   const float* view_rotations = nullptr;  // (N, 3, 3): SH direction = Rᵀ dir
 };
 
@@ -61,7 +79,8 @@ struct TileBins {
 struct PixelState {
   float* final_T = nullptr;
   int32_t* n_contrib = nullptr;         // list position after the last blended entry
-  int32_t* exclusive_winner = nullptr;  // list position of the blended exclusive one, or -1
+  int32_t* exclusive_winner = nullptr;  // global rule: list position of the blended exclusive
+                                        // one, or -1 (unused by the group rule)
 };
 
 HOST_DEVICE inline int tiles_along(int pixels) { return (pixels + kTileSize - 1) / kTileSize; }
@@ -74,10 +93,12 @@ int64_t slot_offsets_cpu(int64_t num, const int32_t* tiles_touched, int64_t* slo
 void bin_cpu(const CameraParams& cam, int64_t num, const float* proj, const int32_t* rect,
              const int64_t* slot_offset, int32_t* tile_start, int32_t* tile_slots,
              int32_t* slot_gaussian);
-void render_forward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+// earlier[i] = earlier_group_member(proj, next, i) for every Gaussian with next[i] >= 0.
+void group_earlier_cpu(int64_t num, const float* proj, const int32_t* next, int32_t* earlier);
+void render_forward_cpu(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                         const TileBins& bins, const float* background, float* rgb,
                         float* alpha, float* depth, const PixelState& state);
-void render_backward_cpu(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void render_backward_cpu(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                          const TileBins& bins, const float* background,
                          const PixelState& state, const float* grad_rgb,
                          const float* grad_alpha, const float* grad_depth, float* slot_grads);
@@ -100,10 +121,12 @@ void bin_cuda(const CameraParams& cam, int64_t num, const float* proj, const int
               const int64_t* slot_offset, int64_t total_slots, int32_t* tile_start,
               int32_t* tile_slots, int32_t* slot_gaussian, uint64_t* keys, int32_t* values,
               void* scratch, size_t scratch_bytes, void* stream);
-void render_forward_cuda(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void group_earlier_cuda(int64_t num, const float* proj, const int32_t* next, int32_t* earlier,
+                        void* stream);
+void render_forward_cuda(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                          const TileBins& bins, const float* background, float* rgb,
                          float* alpha, float* depth, const PixelState& state, void* stream);
-void render_backward_cuda(const CameraParams& cam, const float* proj, const uint8_t* exclusive,
+void render_backward_cuda(const CameraParams& cam, const float* proj, const ExclusiveRule& exclusive,
                           const TileBins& bins, const float* background,
                           const PixelState& state, const float* grad_rgb,
                           const float* grad_alpha, const float* grad_depth, float* slot_grads,

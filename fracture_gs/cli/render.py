@@ -25,7 +25,7 @@ from typing import TextIO
 import numpy as np
 import torch
 
-from fracture_gs.fracture.fpgo import FPGOSettings
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.mpm.output import write_text_atomic
 from fracture_gs.render.frame_gaussians import FrameGaussians, ModelError, SceneGaussians
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png
@@ -115,9 +115,13 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="FPGO sphere radius in Gaussian scales (default 2)")
     parser.add_argument("--min-fragment", type=int, default=defaults.min_fragment,
                         help="FPGO: fragments with fewer particles are not drawn (default 10)")
-    parser.add_argument("--no-exclusive", dest="exclusive", action="store_false",
-                        help="FPGO lens Gaussians blend like all others instead of only the "
-                        "nearest one per pixel (SPEC §6.1 'exclusive')")
+    parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default=defaults.exclusive,
+                        help="FPGO lens Gaussians at a pixel: 'group' (default, paper §3.2.2) "
+                        "only the nearest of the lenses that replace one fractured particle's "
+                        "Gaussian blends; 'all' only the nearest of all lenses (SPEC §6.1's "
+                        "global rule); 'none' they blend like all others")
+    parser.add_argument("--no-exclusive", dest="exclusive", action="store_const", const="none",
+                        help="same as --exclusive none")
     return parser.parse_args(argv)
 
 

@@ -14,7 +14,8 @@ particles), it returns the Gaussians to draw:
    object within d_c (current positions, hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
    σ the Gaussian's current size det(Σ)^(1/6), give one lens ellipsoid per overlapping pair
    (:func:`fracture_gs.fracture.ops.lens_ellipsoids`), with g_i's opacity, SH and view rotation,
-   marked ``exclusive`` (unless ``FPGOSettings.exclusive`` is off); they replace g_i (and any
+   in exclusive group i (``FPGOSettings.exclusive``: per pixel only the nearest lens of g_i
+   blends, paper §3.2.2); they replace g_i (and any
    other Gaussian particle i drives). A fractured particle without an overlapping intact
    neighbour keeps its Gaussian.
 """
@@ -35,6 +36,9 @@ if TYPE_CHECKING:  # pragma: no cover
 InteriorDeform = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
 
 
+EXCLUSIVE_RULES = ("group", "all", "none")
+
+
 @dataclass(frozen=True)
 class FPGOSettings:
     """FPGO parameters (SPEC §6.3 defaults; ``min_fragment`` is ours: the paper gives none)."""
@@ -44,10 +48,16 @@ class FPGOSettings:
     k_sigma: float = 2.0         # sphere radius = k_sigma × Gaussian scale
     min_fragment: int = 10       # fragments with fewer particles are not drawn
     interpolation_k: int = 4     # surface Gaussians an interior particle's appearance comes from
-    exclusive: bool = True       # lens Gaussians are `exclusive` (SPEC §6.1: per pixel only the
-    #                              nearest one blends); False: they blend like any other
+    exclusive: str = "group"     # "group": per pixel only the nearest lens of each replaced g_i
+    #                              blends (paper §3.2.2); "all": only the nearest lens of all
+    #                              (SPEC §6.1's global rule); "none": lenses blend like any other
 
     def __post_init__(self) -> None:
+        if isinstance(self.exclusive, bool):  # the earlier bool setting: True = the lenses' rule
+            object.__setattr__(self, "exclusive", "group" if self.exclusive else "none")
+        if self.exclusive not in EXCLUSIVE_RULES:
+            raise ValueError(f"exclusive must be one of {', '.join(EXCLUSIVE_RULES)}, "
+                             f"got {self.exclusive!r}")
         if not self.dc_factor > 0:
             raise ValueError(f"dc_factor must be > 0, got {self.dc_factor}")
         if not 1 <= self.k_neighbours <= 16:
@@ -215,7 +225,7 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     tick = time.perf_counter()
     out, stats.interior_gaussians = _assemble(columns, interior, interior_deformed, lens, valid,
                                               pair_i, hidden, replaced, particles,
-                                              settings.exclusive)
+                                              settings.exclusive != "none")
     detail["assemble"] = (time.perf_counter() - tick) * 1e3
     stats.detail_ms = detail
     stats.milliseconds = (time.perf_counter() - started) * 1e3
@@ -242,8 +252,8 @@ def _assemble(columns: dict[str, torch.Tensor], interior: torch.Tensor,
               exclusive: bool) -> tuple[dict[str, torch.Tensor], int]:
     """The frame's Gaussians — base ones of particles neither hidden nor replaced, interpolated
     ones of unreplaced fractured interior particles, and the lenses, which inherit opacity, SH
-    and view rotation from g_i (particle i's own Gaussian, or its interpolated one) — and the
-    number of interpolated ones."""
+    and view rotation from g_i (particle i's own Gaussian, or its interpolated one) and, when
+    ``exclusive``, get exclusive group id i — and the number of interpolated ones."""
     device = interior.device
     keep_base = torch.nonzero(~(hidden | replaced)[columns["particle"]]).flatten()
     keep_interior = torch.nonzero(~replaced[interior]).flatten()
@@ -282,10 +292,12 @@ def _assemble(columns: dict[str, torch.Tensor], interior: torch.Tensor,
     out["object_id"] = _gather_cat([(columns["object_id"], keep_base), (object_id, kept),
                                     (object_id, owners.index_select(0, particle_order))])
     count_lens = int(valid.numel())
+    lens_group = owners.index_select(0, particle_order) if exclusive else \
+        torch.full((count_lens,), -1, dtype=torch.int64, device=device)
     out["exclusive"] = torch.cat([
         columns["exclusive"].index_select(0, keep_base),
-        torch.zeros(keep_interior.numel(), dtype=torch.bool, device=device),
-        torch.full((count_lens,), exclusive, dtype=torch.bool, device=device)])
+        torch.full((keep_interior.numel(),), -1, dtype=torch.int64, device=device),
+        lens_group.to(torch.int64)])
     out["is_fpgo"] = torch.cat([columns["is_fpgo"].index_select(0, keep_base),
                                 torch.ones(keep_interior.numel() + count_lens, dtype=torch.bool,
                                            device=device)])

@@ -22,8 +22,9 @@ R the polar rotation of F_E (SPEC §6.2) — compiled kernels — then optionall
 (:mod:`fracture_gs.fracture.fpgo`).
 
 Frame PLY files follow the 3DGS layout: covariances become scale + rotation, SH are rotated
-into the world frame, and the FPGO ``exclusive`` flag travels in the ``nx`` column (3DGS writes
-zeros there and no renderer reads normals), so viewers that read fixed-size rows open it too.
+into the world frame, and FPGO's exclusive group (id + 1, 0 for none) travels in the ``nx``
+column, ``ny`` = 1 when the SPEC's global rule applies (3DGS writes zeros there and no renderer
+reads normals), so viewers that read fixed-size rows open it too.
 """
 from __future__ import annotations
 
@@ -60,8 +61,11 @@ class FrameGaussians:
     """The Gaussians of one frame, world frame, ready for :func:`fracture_gs.render.rasterize`.
 
     SH coefficients are in each object's model frame and are looked up at
-    ``view_rotations[g]ᵀ · direction``; ``exclusive`` marks FPGO lens Gaussians (only the nearest
-    one blends at a pixel); ``particle`` is the particle each Gaussian follows.
+    ``view_rotations[g]ᵀ · direction``; ``exclusive`` is the exclusive group of FPGO lens
+    Gaussians (the fractured particle whose Gaussian they replace; -1: none) and
+    ``exclusive_rule`` how it applies (``fracture_gs.render.exclusive``: "group", only the nearest
+    lens of each group blends at a pixel; "all", only the nearest of all lenses); ``particle`` is
+    the particle each Gaussian follows.
     """
 
     means: torch.Tensor           # (M,3)
@@ -69,11 +73,12 @@ class FrameGaussians:
     opacities: torch.Tensor       # (M,) in [0,1]
     sh: torch.Tensor              # (M,K,3)
     view_rotations: torch.Tensor  # (M,3,3)
-    exclusive: torch.Tensor       # (M,) bool
+    exclusive: torch.Tensor       # (M,) int64 exclusive group, -1: none
     object_id: torch.Tensor       # (M,) int32
     is_fpgo: torch.Tensor         # (M,) bool: made by FPGO (lens or interior Gaussian)
     particle: torch.Tensor        # (M,) int64
     stats: FPGOStats | None = None
+    exclusive_rule: str = "group"  # "group" or "all" (SPEC §6.1's global rule)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -85,11 +90,23 @@ class FrameGaussians:
     def rasterize(self, camera: Camera, background: torch.Tensor | None = None,
                   backend: str = "auto") -> dict[str, torch.Tensor]:
         """Render with :func:`fracture_gs.render.rasterize` (rgb, alpha, depth, radii)."""
-        exclusive = self.exclusive if bool(self.exclusive.any()) else None
         with torch.no_grad():
             return rasterize(self.means, self.opacities, camera, covariances=self.covariances,
-                             sh=self.sh, view_rotations=self.view_rotations, exclusive=exclusive,
+                             sh=self.sh, view_rotations=self.view_rotations,
+                             exclusive=self.exclusive_argument(),
                              background=background, backend=backend)
+
+    def exclusive_argument(self) -> torch.Tensor | None:
+        """``exclusive`` for :func:`fracture_gs.render.rasterize`: group ids, bool flags for the
+        global rule, None when no Gaussian is exclusive."""
+        flags = self.exclusive >= 0
+        if not bool(flags.any()):
+            return None
+        return flags if self.exclusive_rule == "all" else self.exclusive
+
+    def without_exclusive(self) -> "FrameGaussians":
+        """The same Gaussians, all blending like ordinary ones."""
+        return replace(self, exclusive=torch.full_like(self.exclusive, -1))
 
     def to_gaussian_model(self) -> GaussianModel:
         """The same Gaussians as a 3DGS model: scale + rotation from the eigen-decomposition of
@@ -112,22 +129,32 @@ class FrameGaussians:
                              logit[:, None].float(), log_scales.float(), quats.float())
 
     def write_ply(self, path: str | Path) -> None:
-        """Write a 3DGS ``point_cloud.ply`` (atomically); ``nx`` holds the exclusive flag."""
-        normals = torch.zeros(len(self), 3)
-        normals[:, 0] = self.exclusive.detach().cpu().float()
+        """Write a 3DGS ``point_cloud.ply`` (atomically); ``nx`` holds the exclusive group + 1,
+        ``ny`` is 1 under the global rule."""
+        if len(self) and int(self.exclusive.max()) + 1 >= 2 ** 24:
+            raise ValueError(f"write_ply({path}): exclusive group ids must stay below 2**24 - 1 "
+                             "to travel exactly in the float32 nx column")
+        normals = torch.zeros(len(self), 3, dtype=torch.float64)
+        normals[:, 0] = self.exclusive.detach().cpu().double() + 1.0
+        normals[:, 1] = 1.0 if self.exclusive_rule == "all" else 0.0
         write_ply(str(path), self.to_gaussian_model(), normals=normals)
 
 
 def read_frame_ply(path: str | Path,
                    device: torch.device | None = None) -> tuple[GaussianModel, torch.Tensor]:
-    """A PLY written by :meth:`FrameGaussians.write_ply`: the model and its exclusive flags."""
+    """A PLY written by :meth:`FrameGaussians.write_ply`: the model and its ``exclusive`` in the
+    form :func:`fracture_gs.render.rasterize` takes (int64 group ids, -1 for none; bool flags
+    when the frame was drawn with the global rule)."""
     import plyfile
 
     model = read_ply(str(path), device=device)
     vertex = plyfile.PlyData.read(str(path))["vertex"]
     names = [p.name for p in vertex.properties]
-    flags = np.asarray(vertex["nx"]) > 0.5 if "nx" in names else np.zeros(vertex.count, bool)
-    return model, torch.from_numpy(flags).to(model.device)
+    groups = (np.rint(np.asarray(vertex["nx"], np.float64)).astype(np.int64) - 1
+              if "nx" in names else np.full(vertex.count, -1, np.int64))
+    global_rule = "ny" in names and vertex.count > 0 and bool(np.asarray(vertex["ny"]).max() > 0.5)
+    exclusive = torch.from_numpy(groups >= 0 if global_rule else groups)
+    return model, exclusive.to(model.device)
 
 
 # ----------------------------------------------------------------------------- the binding
@@ -373,7 +400,7 @@ class SceneGaussians:
         base = FrameGaussians(
             means=deformed.means, covariances=deformed.covariances, opacities=tables["opacities"],
             sh=tables["sh"], view_rotations=deformed.view_rotations,
-            exclusive=torch.zeros(count, dtype=torch.bool, device=self.device),
+            exclusive=torch.full((count,), -1, dtype=torch.int64, device=self.device),
             object_id=tables["object_id"], is_fpgo=torch.zeros(count, dtype=torch.bool,
                                                                device=self.device),
             particle=tables["driver"])
@@ -381,7 +408,8 @@ class SceneGaussians:
             return base
         columns, stats = apply_fpgo(base, x, F_E, frame.fractured.to(self.device), self.fracture,
                                     self.settings, self._deform_interior(x, F_E, backend), backend)
-        return FrameGaussians(**columns, stats=stats)
+        rule = "all" if self.settings.exclusive == "all" else "group"
+        return FrameGaussians(**columns, stats=stats, exclusive_rule=rule)
 
 
 __all__ = ["FLAT_PALETTE", "FrameGaussians", "ModelError", "SceneGaussians", "latest_point_cloud",

@@ -10,7 +10,10 @@ C++/CUDA kernels must reproduce exactly:
   (as 3DGS); plus 0.3 px² on the diagonal; culled when its determinant is <= 0.
 * a pixel (i, j) has its centre at (i + 0.5, j + 0.5); alpha = min(0.99, o·exp(-½ dᵀ Σ₂⁻¹ d)).
 * blending in order of camera depth, ties by index: entries with alpha < 1/255 are skipped;
-  an exclusive Gaussian is skipped once an earlier exclusive one was blended at that pixel;
+  exclusive as bool flags (global rule): a flagged Gaussian is skipped once an earlier flagged
+  one was blended at that pixel; exclusive as integer group ids (group rule,
+  ``fracture_gs.render.exclusive``): a Gaussian of group id >= 0 is skipped where an earlier
+  one of the same group has alpha >= 1/255;
   a pixel stops (without blending the entry) when T·(1 - alpha) < 1e-4.
 * outputs rgb = Σ w c + T_final · background, alpha = 1 - T_final, and depth = Σ w z
   (NOT normalised: divide by alpha for the mean depth of the covered part), w = alpha·T.
@@ -24,6 +27,7 @@ import math
 import torch
 
 from fracture_gs.render.camera import Camera
+from fracture_gs.render.exclusive import group_blocked, is_group_ids
 from fracture_gs.render.inputs import RasterInputs, check_inputs
 from fracture_gs.render.sh import sh_to_color, view_directions
 
@@ -103,9 +107,11 @@ def _support_and_radii(cov2d: torch.Tensor, det: torch.Tensor, mean2d: torch.Ten
 def _blend(alpha: torch.Tensor, exclusive: torch.Tensor | None
            ) -> tuple[torch.Tensor, torch.Tensor]:
     """Blending weights w (P, M) and final transmittance (P,) from alphas (P, M) sorted
-    front to back (3DGS rules)."""
+    front to back (3DGS rules); exclusive (M,): bool flags or group ids in that order."""
     used = alpha >= ALPHA_MIN
-    if exclusive is not None:
+    if is_group_ids(exclusive):
+        used = used & ~group_blocked(used, exclusive)
+    elif exclusive is not None:
         candidate = exclusive[None, :] & used
         first = candidate & (torch.cumsum(candidate.to(torch.int32), dim=1) == 1)
         used = used & (~exclusive[None, :] | first)

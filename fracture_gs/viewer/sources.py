@@ -131,7 +131,7 @@ def model_gaussians(model_dir: Path, device: torch.device) -> FrameGaussians:
             opacities=model.opacities.detach().float().reshape(-1),
             sh=model.sh.detach().float(),
             view_rotations=torch.eye(3, device=device).expand(count, 3, 3),
-            exclusive=torch.zeros(count, dtype=torch.bool, device=device),
+            exclusive=torch.full((count,), -1, dtype=torch.int64, device=device),
             object_id=torch.zeros(count, dtype=torch.int32, device=device),
             is_fpgo=torch.zeros(count, dtype=torch.bool, device=device),
             particle=torch.full((count,), -1, dtype=torch.int64, device=device))

@@ -14,8 +14,8 @@ What changes on the way:
   the scene's bounding box diagonal is 100 units (σ = 0.05 % of the scene stays a normal
   float16, a Gaussian as large as the scene stays below float16's maximum) — and the scene
   node is scaled back by ``1 / unit_scale``;
-* FPGO's ``exclusive`` flag (only the nearest lens Gaussian blends at a pixel) has no
-  counterpart in viser's renderer: lens Gaussians blend like all others there.
+* FPGO's exclusive groups (only the nearest lens of each replaced Gaussian blends at a pixel)
+  have no counterpart in viser's renderer: lens Gaussians blend like all others there.
 """
 from __future__ import annotations
 
