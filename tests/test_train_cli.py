@@ -23,7 +23,7 @@ from fracture_gs.cli.train import main as train_main
 from fracture_gs.gaussians import GaussianModel, read_ply, write_ply
 from fracture_gs.gaussians.ply import ply_property_names
 from fracture_gs.recon.hull import VisualHull
-from fracture_gs.recon.model_io import read_particles_ply
+from fracture_gs.recon.model_io import read_particles_ply, run_lock
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "synthetic_fixture"
@@ -144,6 +144,20 @@ def test_interrupted_training_resumes_from_its_checkpoint(tmp_path: Path) -> Non
     for name, value in resumed.raw_tensors().items():
         assert torch.allclose(value, straight.raw_tensors()[name], atol=1e-6), name
     assert not list(interrupted.glob("chkpnt*.pth"))
+
+
+def test_a_second_run_into_the_same_model_folder_is_refused(trained: Path,
+                                                             capsys: pytest.CaptureFixture) -> None:
+    """Two train.py runs writing one folder would mix their files: the second one stops with a
+    one-line error (exit 2) and touches nothing; once the first ends, the folder is free."""
+    before = {name: (trained / name).stat().st_mtime_ns for name in ("sdf.npz", "cfg_args")}
+    with run_lock(str(trained)):   # another run holds the folder
+        assert _run(["-s", FIXTURE, "-m", trained, *TINY]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "another train.py run is writing this model folder" in err[0]
+    assert {name: (trained / name).stat().st_mtime_ns for name in before} == before
+    with run_lock(str(trained)):   # released by the refused run and by the holder
+        pass
 
 
 def test_from_sdf_reuses_the_geometry_of_an_earlier_run(trained: Path, tmp_path: Path,

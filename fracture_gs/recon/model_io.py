@@ -35,6 +35,7 @@ import plyfile
 import torch
 import trimesh
 
+from fracture_gs.recon.errors import ReconstructionError
 from fracture_gs.render.camera import Camera
 
 PARTICLES_FILE = "particles.ply"
@@ -99,6 +100,34 @@ class OutputFolder:
                 os.remove(path)
             elif os.path.isdir(path):
                 shutil.rmtree(path, ignore_errors=True)
+
+
+LOCK_NAME = ".train.lock"
+
+
+@contextlib.contextmanager
+def run_lock(path: str) -> Iterator[None]:
+    """Hold an advisory lock on the model folder ``path`` (its ``.train.lock``) for one train.py
+    run; the system releases it when the run ends or its process dies, so it never goes stale.
+    ReconstructionError naming the folder when another run holds it (two runs writing one folder
+    would mix their files). Where ``fcntl`` is missing (Windows) it does nothing."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover
+        yield
+        return
+    os.makedirs(path, exist_ok=True)
+    with open(os.path.join(path, LOCK_NAME), "a+", encoding="utf-8") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ReconstructionError(f"{path}: another train.py run is writing this model folder "
+                                      "(it holds .train.lock); wait for it or give another -m") from None
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"{os.getpid()}\n")
+        handle.flush()
+        yield
 
 
 # ----------------------------------------------------------------------------- cfg_args

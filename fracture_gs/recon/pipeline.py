@@ -333,11 +333,12 @@ def train(config: TrainConfig, out: TextIO = sys.stdout) -> dict[str, Any]:
     inputs = read_inputs(config)
     device = torch.device(config.device)
     folder = model_io.OutputFolder(config.model_path)
-    try:
-        return _train_into(config, inputs, folder, device, out)
-    except (ReconstructionError, DatasetError, PlyFormatError):
-        folder.discard()
-        raise
+    with model_io.run_lock(config.model_path):
+        try:
+            return _train_into(config, inputs, folder, device, out)
+        except (ReconstructionError, DatasetError, PlyFormatError):
+            folder.discard()
+            raise
 
 
 def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
