@@ -309,6 +309,10 @@ def test_bad_input_raises() -> None:
     with pytest.raises(ValueError, match="sh"):
         rasterize(means, torch.zeros(3), camera, covariances=torch.eye(3).repeat(3, 1, 1),
                   sh=torch.zeros(3, 5, 3))
+    for dtype in (torch.uint8, torch.float32):  # uint8 0/1 would read as groups 0 and 1
+        with pytest.raises(ValueError, match="exclusive"):
+            rasterize(means, torch.zeros(3), camera, covariances=torch.eye(3).repeat(3, 1, 1),
+                      colors=torch.ones(3, 3), exclusive=torch.zeros(3, dtype=dtype))
 
 
 @needs_cpp

@@ -270,20 +270,20 @@ inline LaneF splat_alpha_lanes(float u, float v, float A, float B, float C, floa
 }
 
 // The group rule (ExclusiveRule) of a tile's list: for every grouped entry with exactly one
-// earlier member in its group (FPGO's pairs of lenses), that member's projected parameters (for
-// the backward) and its position in the tile's list (for the forward, which has just evaluated
-// that member's alpha on the same row: see usable); entries with several earlier members walk
-// the ring per row.
+// earlier member in its group (FPGO's pairs of lenses), that member's position in the tile's
+// list (forward, which has just evaluated that member's alpha on the same row: see usable) or
+// its projected parameters (backward, which walks the list in reverse); entries with several
+// earlier members walk the ring per row.
 struct EarlierMembers {
   std::vector<float> u, v, A, B, C, opacity;
   std::vector<int32_t> one;      // earlier_group_member of the entry's Gaussian (or kNoEarlierMember)
-  std::vector<int32_t> partner;  // one >= 0: tile-list position of that member, -1: not in the list
+  std::vector<int32_t> partner;  // forward, one >= 0: tile-list position of that member, -1: absent
   // Forward: per tile-list position of a grouped entry, its alpha >= 1/255 lanes on the row with
   // serial number usable_row (a member absent from a row has alpha < 1/255 on all of it).
   std::vector<LaneI, AlignedAllocator<LaneI>> usable;
   std::vector<int64_t> usable_row;
 
-  void fill(const TileList& tile, const float* proj, const ExclusiveRule& rule) {
+  void fill(const TileList& tile, const float* proj, const ExclusiveRule& rule, bool forward) {
     const size_t n = (size_t)tile.size;
     for (auto* vec : {&u, &v, &A, &B, &C, &opacity})
       if (vec->size() < n) vec->resize(n);
@@ -293,9 +293,12 @@ struct EarlierMembers {
       one[k] = tile.exclusive[k] ? rule.earlier[tile.gid[k]] : kNoEarlierMember;
       if (one[k] < 0) continue;
       const float* g = proj + (int64_t)kProjStride * one[k];
-      u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
-      opacity[k] = g[kOpacity];
-      partner[k] = position_in(tile, g[kDepth], one[k]);
+      if (forward) {
+        partner[k] = position_in(tile, g[kDepth], one[k]);
+      } else {
+        u[k] = g[kU]; v[k] = g[kV]; A[k] = g[kConicA]; B[k] = g[kConicB]; C[k] = g[kConicC];
+        opacity[k] = g[kOpacity];
+      }
     }
   }
 
@@ -312,6 +315,7 @@ struct EarlierMembers {
 
   // earlier_group_member_blends (common/blend.h) on every lane for the entry at tile-list
   // position k (Gaussian m): -1 where an earlier member has alpha >= 1/255 at the lane's pixel.
+  // A single earlier member's parameters are there after fill(..., forward = false) only.
   LaneI blocked(int32_t k, const ExclusiveRule& rule, const float* proj, int32_t m, LaneF px,
                 float py) const {
     LaneF G;
@@ -373,7 +377,7 @@ void render_forward_cpu(const CameraParams& cam, const float* proj, const Exclus
     for (int tile = 0; tile < num_tiles; ++tile) {
       const TileGeometry geo = tile_geometry(cam, bins.tiles_x, tile);
       tile_list.gather(bins, tile, proj, exclusive);
-      if (group_rule) earlier.fill(tile_list, proj, exclusive);
+      if (group_rule) earlier.fill(tile_list, proj, exclusive, /*forward=*/true);
       for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
           const float py = (float)(geo.y0 + row) + 0.5f;
           ++row_serial;
@@ -451,7 +455,7 @@ void render_backward_cpu(const CameraParams& cam, const float* proj, const Exclu
       const int32_t begin = bins.tile_start[tile], count = bins.tile_start[tile + 1] - begin;
       lane_grads.assign((size_t)count * kSlotStride * kLanes, 0.f);
       tile_list.gather(bins, tile, proj, exclusive);
-      if (group_rule) earlier.fill(tile_list, proj, exclusive);
+      if (group_rule) earlier.fill(tile_list, proj, exclusive, /*forward=*/false);
       for_each_row(geo, tile_list, quarter, [&](const TileList& list, int row, int col0, int cols) {
           const float py = (float)(geo.y0 + row) + 0.5f;
           LaneF px, T = lanes_of(1.f), tail{}, g_r{}, g_g{}, g_b{}, g_d{};

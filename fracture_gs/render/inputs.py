@@ -85,9 +85,10 @@ def check_inputs(means: torch.Tensor, opacities: torch.Tensor, camera: Camera, *
         raise ValueError("rasterize: view_rotations only apply to sh colours")
     if exclusive is not None:
         _check_shape("exclusive", exclusive, (n,), device)
-        if exclusive.dtype != torch.bool and (exclusive.is_floating_point() or exclusive.is_complex()):
-            raise ValueError("rasterize: exclusive must be a bool tensor (global rule) or an "
-                             f"integer tensor of group ids (group rule), got {exclusive.dtype}")
+        if exclusive.dtype not in (torch.bool, torch.int8, torch.int16, torch.int32, torch.int64):
+            # uint8 is refused too: 0/1 flags in it would silently read as groups 0 and 1
+            raise ValueError("rasterize: exclusive must be a bool tensor (global rule) or a "
+                             f"signed integer tensor of group ids (group rule), got {exclusive.dtype}")
     if background is None:
         background = torch.zeros(3, dtype=means.dtype, device=device)
     _check_shape("background", background, (3,), device)
