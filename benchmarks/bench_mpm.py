@@ -10,9 +10,11 @@ fractured and that read a split node while timed.
 
     python benchmarks/bench_mpm.py [--grid 128] [--particles 50000 200000] [--device cpu]
 
-The compiled backend is timed in --repeats consecutive blocks of --steps steps; the JSON gives the
-median block (ms_per_step, particle_steps_per_s) and the slowest and fastest block, because a
-shared machine's speed drifts between seconds.
+The compiled backend is timed in --repeats blocks of --steps steps; the JSON gives the median
+block (ms_per_step, particle_steps_per_s) and the slowest and fastest block, because a shared
+machine's speed drifts between seconds. The solvers without and with fragments take turns, one
+block each per round, so that such a drift does not fall on one of them only; fragment_cost gives
+the ratio of their medians and the median and range of the per-round ratios.
 """
 from __future__ import annotations
 
@@ -51,23 +53,78 @@ def two_spheres(n_total: int, grid: int, device: torch.device, backend: str, fra
                         gravity=(0, 0, -9.8), cfl=0.3, backend=backend, device=device)
 
 
-def measure(solver: CollisionMPM, steps: int, repeats: int) -> tuple[list[float], float]:
-    """Seconds per step of ``repeats`` consecutive blocks of ``steps`` steps, after one warm-up step,
-    and the mean share of particles that read a split node (fragments)."""
-    solver.step(solver.stable_dt())
-    seconds, split_masks = [], []
+def timed_block(solver: CollisionMPM, steps: int, split_masks: list) -> float:
+    """Seconds per step of one block of ``steps`` steps (split masks kept for after the timing)."""
+    if solver.device.type == "cuda":
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    for _ in range(steps):
+        solver.step(solver.stable_dt())
+        split_masks.append(solver.last_split_mask)  # counted after the timing
+    if solver.device.type == "cuda":
+        torch.cuda.synchronize()
+    return (time.perf_counter() - start) / steps
+
+
+def measure(solvers: list[CollisionMPM], steps: int, repeats: int) -> list[tuple[list[float], float]]:
+    """Per solver: seconds per step of ``repeats`` blocks of ``steps`` steps, after one warm-up step,
+    and the mean share of particles that read a split node (fragments). The solvers take turns,
+    one block each per round, so that a drift of the machine's speed (seconds long on a shared
+    machine) falls on all of them alike instead of on whichever ran last."""
+    for solver in solvers:
+        solver.step(solver.stable_dt())
+    seconds = [[] for _ in solvers]
+    split_masks = [[] for _ in solvers]
     for _ in range(repeats):
-        if solver.device.type == "cuda":
-            torch.cuda.synchronize()
-        start = time.perf_counter()
-        for _ in range(steps):
-            solver.step(solver.stable_dt())
-            split_masks.append(solver.last_split_mask)  # counted after the timing
-        if solver.device.type == "cuda":
-            torch.cuda.synchronize()
-        seconds.append((time.perf_counter() - start) / steps)
-    split = sum(int(mask.sum()) for mask in split_masks if mask is not None)
-    return seconds, split / (steps * repeats * max(len(solver.particles), 1))
+        for i, solver in enumerate(solvers):
+            seconds[i].append(timed_block(solver, steps, split_masks[i]))
+    out = []
+    for solver, blocks, masks in zip(solvers, seconds, split_masks):
+        split = sum(int(mask.sum()) for mask in masks if mask is not None)
+        out.append((blocks, split / (steps * repeats * max(len(solver.particles), 1))))
+    return out
+
+
+def result_row(solver: CollisionMPM, backend: str, fragments: bool, steps: int, repeats: int,
+               blocks: list[float], split_share: float, alpha_start: torch.Tensor) -> dict:
+    """One JSON row: the median block and the range of the blocks."""
+    seconds = statistics.median(blocks)
+    n_particles = len(solver.particles)
+    return {
+        "backend": backend, "fragments": fragments, "particles": n_particles, "steps": steps,
+        "repeats": repeats,
+        "ms_per_step": round(1e3 * seconds, 3),
+        "particle_steps_per_s": round(n_particles / seconds),
+        "particle_steps_per_s_range": [round(n_particles / max(blocks)), round(n_particles / min(blocks))],
+        "plastic_fraction_during_timing": round(float((solver.state.alpha != alpha_start).float().mean()), 4),
+        "fractured_fraction": round(float(solver.state.fractured.float().mean()), 4),
+        "split_particle_fraction": round(split_share, 4),
+        "contact_blocks": int(len(solver.last_bins.contact_blocks)) if solver.last_bins else None,
+    }
+
+
+def run_timed(n: int, args: argparse.Namespace, device: torch.device,
+              configs: list[tuple[str, bool, int, int]]) -> list[tuple[dict, list[float]]]:
+    """Builds one solver per (backend, fragments, steps, repeats), lets the spheres press into each
+    other (contact and plasticity active), and times them; solvers with the same steps and repeats
+    take turns (measure). Returns (JSON row, block seconds) per config."""
+    rows: list[tuple[dict, list[float]]] = []
+    groups: dict[tuple[int, int], list[tuple[str, bool]]] = {}
+    for backend, fragments, steps, repeats in configs:
+        groups.setdefault((steps, repeats), []).append((backend, fragments))
+    for (steps, repeats), members in groups.items():
+        solvers, alpha_starts = [], []
+        for backend, fragments in members:
+            solver = two_spheres(n, args.grid, device, backend, fragments)
+            for _ in range(5 if backend == "reference" else 40):
+                solver.step(solver.stable_dt())
+            solvers.append(solver)
+            alpha_starts.append(solver.state.alpha.clone())
+        for (backend, fragments), solver, alpha_start, (blocks, split_share) in zip(
+                members, solvers, alpha_starts, measure(solvers, steps, repeats)):
+            rows.append((result_row(solver, backend, fragments, steps, repeats, blocks, split_share, alpha_start),
+                         blocks))
+    return rows
 
 
 def main() -> None:
@@ -75,50 +132,37 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--particles", type=int, nargs="+", default=[50_000, 200_000])
     parser.add_argument("--steps", type=int, default=30, help="steps per timed block, compiled backend")
-    parser.add_argument("--repeats", type=int, default=5,
+    parser.add_argument("--repeats", type=int, default=7,
                         help="timed blocks of the compiled backend; the median block is reported")
     parser.add_argument("--reference-steps", type=int, default=2, help="timed steps of the torch reference")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--skip-reference", action="store_true", help="time the compiled backend only")
     args = parser.parse_args()
     device = torch.device(args.device)
-    results = []
-    cost = []
+    results, cost = [], []
     for n in args.particles:
-        runs = (("cpp", False, args.steps, args.repeats), ("cpp", True, args.steps, args.repeats)) + (
-            () if args.skip_reference else (("reference", False, args.reference_steps, 1),))
-        for backend, fragments, steps, repeats in runs:
-            if backend == "cpp" and compiled_module() is None:
-                continue
-            solver = two_spheres(n, args.grid, device, backend, fragments)
-            # Let the spheres press into each other so contact and plasticity are active.
-            for _ in range(5 if backend == "reference" else 40):
-                solver.step(solver.stable_dt())
-            alpha_start = solver.state.alpha.clone()
-            blocks, split_share = measure(solver, steps, repeats)
-            seconds = statistics.median(blocks)
-            plastic = float((solver.state.alpha != alpha_start).float().mean())
-            n_particles = len(solver.particles)
-            if backend == "cpp":
-                cost.append((n_particles, fragments, seconds))
-            results.append({
-                "backend": backend, "fragments": fragments, "particles": n_particles, "steps": steps,
-                "repeats": repeats,
-                "ms_per_step": round(1e3 * seconds, 3),
-                "particle_steps_per_s": round(n_particles / seconds),
-                "particle_steps_per_s_range": [round(n_particles / max(blocks)), round(n_particles / min(blocks))],
-                "plastic_fraction_during_timing": round(plastic, 4),
-                "fractured_fraction": round(float(solver.state.fractured.float().mean()), 4),
-                "split_particle_fraction": round(split_share, 4),
-                "contact_blocks": int(len(solver.last_bins.contact_blocks)) if solver.last_bins else None,
-            })
+        configs = [("cpp", False, args.steps, args.repeats), ("cpp", True, args.steps, args.repeats)]
+        if compiled_module() is None:
+            configs = []
+        if not args.skip_reference:
+            configs.append(("reference", False, args.reference_steps, 1))
+        rows = run_timed(n, args, device, configs)
+        results += [row for row, _ in rows]
+        compiled = {row["fragments"]: blocks for row, blocks in rows if row["backend"] == "cpp"}
+        if len(compiled) == 2:
+            # Ratio of the medians, and the range of the per-round ratios (the two blocks of a
+            # round ran back to back, at nearly the same speed of the machine).
+            rounds = [on / off for off, on in zip(compiled[False], compiled[True])]
+            cost.append({"particles": rows[0][0]["particles"],
+                         "ratio": round(statistics.median(compiled[True]) / statistics.median(compiled[False]), 3),
+                         "round_ratio_median": round(statistics.median(rounds), 3),
+                         "round_ratio_range": [round(min(rounds), 3), round(max(rounds), 3)]})
     print(json.dumps({
         "benchmark": "mpm_full_step", "grid": args.grid, "device": str(device),
         "threads": int(compiled_module().openmp_max_threads()) if compiled_module() else 1,
         "torch_threads": torch.get_num_threads(), "results": results,
         # ms per step with fragments / without, per particle count (issue 14 asks <= 1.4).
-        "fragment_cost": [{"particles": n, "ratio": round(on / off, 3)}
-                          for (n, f_off, off), (_, f_on, on) in zip(cost[0::2], cost[1::2])]}, indent=2))
+        "fragment_cost": cost}, indent=2))
 
 
 if __name__ == "__main__":

@@ -53,9 +53,12 @@ struct AxisWeights {
   float dw[3];
 };
 
+// First stencil node along one axis of a particle at grid coordinate X (position / dx).
+HOST_DEVICE inline int axis_base(float X) { return (int)floorf(X - 0.5f); }
+
 HOST_DEVICE inline AxisWeights axis_weights(float X, float inv_dx) {
   AxisWeights a;
-  a.base = (int)floorf(X - 0.5f);
+  a.base = axis_base(X);
   a.f = X - (float)a.base;
   float f = a.f;
   a.w[0] = 0.5f * (1.5f - f) * (1.5f - f);

@@ -25,6 +25,11 @@ HOST_DEVICE inline void stencil_weights(const float* x, const MPMGeometry& geo, 
   for (int d = 0; d < 3; ++d) aw[d] = axis_weights((x[d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
 }
 
+// The first stencil node alone (aw[d].base of stencil_weights, from the same expression).
+HOST_DEVICE inline void stencil_base(const float* x, const MPMGeometry& geo, int base[3]) {
+  for (int d = 0; d < 3; ++d) base[d] = axis_base((x[d] - geo.lower[d]) * geo.inv_dx);
+}
+
 struct G2PInputs {
   const float* x;
   const float* F_E;

@@ -8,6 +8,7 @@
 // sum, then becomes that sum minus B (fragment_merge_cpu).
 #include <algorithm>
 #include <cstring>
+#include <vector>
 #include <omp.h>
 #if defined(__SSE__)
 #include <xmmintrin.h>
@@ -161,7 +162,9 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     // A particle whose stencil reaches no damaged node has the gradient +0 exactly (the sum below,
     // of zeros), and skips it.
     const uint64_t reaches_damage = stencils_reaching_positive(span_damage);
-    int64_t span_keys[kSpanNodes] = {};  // the cell's largest keys, merged into the grid below
+    // Largest key per stencil origin l in [0, 4)^3 (the particles of one origin reach the same 27
+    // nodes): one maximum per particle here, spread to the span's nodes once per cell below.
+    int64_t origin_keys[kBlockNodes] = {};
     bool any_key = false;
     for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
       const int q = bins.order[it];
@@ -177,13 +180,21 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       any_key = true;
+      int64_t& slot = origin_keys[(l[0] * kBlock + l[1]) * kBlock + l[2]];
+      slot = key > slot ? key : slot;
+    }
+    if (!any_key) return;
+    int64_t span_keys[kSpanNodes] = {};  // the cell's largest key per node of its span
+    for (int o = 0; o < kBlockNodes; ++o) {
+      const int64_t key = origin_keys[o];
+      if (key == 0) continue;
+      const int l0 = o / (kBlock * kBlock), l1 = (o / kBlock) % kBlock, l2 = o % kBlock;
       for (int a = 0; a < 3; ++a)
         for (int b = 0; b < 3; ++b) {
-          int64_t* column = span_keys + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
+          int64_t* column = span_keys + ((l0 + a) * kSpan + l1 + b) * kSpan + l2;
           for (int c = 0; c < 3; ++c) column[c] = key > column[c] ? key : column[c];
         }
     }
-    if (!any_key) return;
     int64_t* keys = reference + (long long)g * nodes;
     for_span_nodes(origin, s, [&](int w, long long node) {
       if (span_keys[w] > keys[node]) keys[node] = span_keys[w];
@@ -229,10 +240,12 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
   const uint64_t reaches_split = stencils_reaching_positive(win.split);
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
-    // The stencil exactly as P2G and G2P compute it (the same function, so the same first node).
-    AxisWeights aw[3];
-    stencil_weights(p.x + 3 * (long long)q, geo, aw);
-    const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
+    // The stencil's first node exactly as P2G and G2P compute it (the same expression); its
+    // weights only for particles on side B somewhere (below).
+    const float* xq = p.x + 3 * (long long)q;
+    int base[3];
+    stencil_base(xq, geo, base);
+    const int l[3] = {base[0] - origin[0], base[1] - origin[1], base[2] - origin[2]};
     if (!stencil_bit(reaches_split, l)) continue;  // split_particle and side_mask stay 0
     split_particle[q] = 1;
     const float* dq = frag.damage_gradient + 3 * (long long)q;
@@ -242,6 +255,8 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
     const uint32_t mask = has_gradient ? side_mask_in_window(win, l, damage_gradient) : 0u;
     side_mask[q] = (int32_t)mask;
     if (mask == 0) continue;  // side A wherever it meets a split node: P2G's field A already holds it
+    AxisWeights aw[3];
+    stencil_weights(xq, geo, aw);
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * (long long)q, p.stress + 9 * (long long)q, m, p.rest_volume[q], dt, geo.inv_dx, A);

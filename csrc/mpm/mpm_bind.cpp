@@ -131,7 +131,7 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
   check_tensor(grid_mass, "grid_mass", torch::kFloat32, x);
   TORCH_CHECK(grid_damage.numel() >= k_nodes && grid_reference.numel() >= k_nodes && grid_mass.numel() >= k_nodes,
               "fragment_reference: grid fields are smaller than the object grids");
-  Tensor damage_gradient = torch::zeros({x.size(0), 3}, x.options());
+  Tensor damage_gradient = torch::empty({x.size(0), 3}, x.options());  // every row is written
   if (x.device().is_cpu()) {
     for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
     Tensor color_start = bins[4];
