@@ -132,7 +132,7 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--particles", type=int, nargs="+", default=[50_000, 200_000])
     parser.add_argument("--steps", type=int, default=30, help="steps per timed block, compiled backend")
-    parser.add_argument("--repeats", type=int, default=7,
+    parser.add_argument("--repeats", type=int, default=5,
                         help="timed blocks of the compiled backend; the median block is reported")
     parser.add_argument("--reference-steps", type=int, default=2, help="timed steps of the torch reference")
     parser.add_argument("--device", default="cpu")
