@@ -141,9 +141,8 @@ def main() -> None:
     device = torch.device(args.device)
     results, cost = [], []
     for n in args.particles:
-        configs = [("cpp", False, args.steps, args.repeats), ("cpp", True, args.steps, args.repeats)]
-        if compiled_module() is None:
-            configs = []
+        configs = [] if compiled_module() is None else [("cpp", False, args.steps, args.repeats),
+                                                         ("cpp", True, args.steps, args.repeats)]
         if not args.skip_reference:
             configs.append(("reference", False, args.reference_steps, 1))
         rows = run_timed(n, args, device, configs)

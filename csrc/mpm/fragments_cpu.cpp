@@ -8,7 +8,6 @@
 // sum, then becomes that sum minus B (fragment_merge_cpu).
 #include <algorithm>
 #include <cstring>
-#include <vector>
 #include <omp.h>
 #if defined(__SSE__)
 #include <xmmintrin.h>
@@ -61,23 +60,24 @@ inline bool stencil_reaches_positive(const float* span, const int l[3]) {
   return (negative_lanes(-highest) & 7u) != 0;  // lanes 0-2: the stencil's nodes
 }
 
-// Bit (l0 * 4 + l1) * 4 + l2 set where the stencil with first node l in [0, 4)^3 of the span (the
-// stencils of a cell's particles) reaches a value > 0 in `span`: computed once per cell instead of
-// once per particle.
+// Index in [0, 64) of the stencil whose first node is l in [0, 4)^3 of a cell's span (the
+// stencils a cell's particles can have).
+inline int stencil_slot(const int l[3]) { return (l[0] * kBlock + l[1]) * kBlock + l[2]; }
+
+// Bit stencil_slot(l) set where the stencil with first node l reaches a value > 0 in `span`:
+// computed once per cell instead of once per particle.
 inline uint64_t stencils_reaching_positive(const float* span) {
   uint64_t reaching = 0;
   for (int l0 = 0; l0 < kBlock; ++l0)
     for (int l1 = 0; l1 < kBlock; ++l1)
       for (int l2 = 0; l2 < kBlock; ++l2) {
         const int l[3] = {l0, l1, l2};
-        if (stencil_reaches_positive(span, l)) reaching |= 1ull << ((l0 * kBlock + l1) * kBlock + l2);
+        if (stencil_reaches_positive(span, l)) reaching |= 1ull << stencil_slot(l);
       }
   return reaching;
 }
 
-inline bool stencil_bit(uint64_t table, const int l[3]) {
-  return (table >> ((l[0] * kBlock + l[1]) * kBlock + l[2])) & 1ull;
-}
+inline bool stencil_bit(uint64_t table, const int l[3]) { return (table >> stencil_slot(l)) & 1ull; }
 
 // Damage gradient sum_i D_i grad w_ip of a particle whose stencil starts at l in the span: the
 // formula of particle_damage_gradient (csrc/common/mpm_fragments.h) with 4-wide rows. Per (x, y)
@@ -164,7 +164,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     const uint64_t reaches_damage = stencils_reaching_positive(span_damage);
     // Largest key per stencil origin l in [0, 4)^3 (the particles of one origin reach the same 27
     // nodes): one maximum per particle here, spread to the span's nodes once per cell below.
-    int64_t origin_keys[kBlockNodes] = {};
+    int64_t origin_keys[kBlockNodes] = {};  // by stencil_slot
     bool any_key = false;
     for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
       const int q = bins.order[it];
@@ -180,21 +180,23 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       any_key = true;
-      int64_t& slot = origin_keys[(l[0] * kBlock + l[1]) * kBlock + l[2]];
+      int64_t& slot = origin_keys[stencil_slot(l)];
       slot = key > slot ? key : slot;
     }
     if (!any_key) return;
     int64_t span_keys[kSpanNodes] = {};  // the cell's largest key per node of its span
-    for (int o = 0; o < kBlockNodes; ++o) {
-      const int64_t key = origin_keys[o];
-      if (key == 0) continue;
-      const int l0 = o / (kBlock * kBlock), l1 = (o / kBlock) % kBlock, l2 = o % kBlock;
-      for (int a = 0; a < 3; ++a)
-        for (int b = 0; b < 3; ++b) {
-          int64_t* column = span_keys + ((l0 + a) * kSpan + l1 + b) * kSpan + l2;
-          for (int c = 0; c < 3; ++c) column[c] = key > column[c] ? key : column[c];
+    for (int l0 = 0; l0 < kBlock; ++l0)
+      for (int l1 = 0; l1 < kBlock; ++l1)
+        for (int l2 = 0; l2 < kBlock; ++l2) {
+          const int l[3] = {l0, l1, l2};
+          const int64_t key = origin_keys[stencil_slot(l)];
+          if (key == 0) continue;
+          for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) {
+              int64_t* column = span_keys + ((l0 + a) * kSpan + l1 + b) * kSpan + l2;
+              for (int c = 0; c < 3; ++c) column[c] = key > column[c] ? key : column[c];
+            }
         }
-    }
     int64_t* keys = reference + (long long)g * nodes;
     for_span_nodes(origin, s, [&](int w, long long node) {
       if (span_keys[w] > keys[node]) keys[node] = span_keys[w];
