@@ -48,13 +48,17 @@ inline Lane4 load_row(const float* row) {  // nodes c = 0, 1, 2 of a stencil row
   return v;
 }
 
+// Index in the span of node (l0 + a, l1 + b, l2): the first of the 3 nodes along z of row (a, b) of
+// the stencil whose first node is l.
+inline int span_row(const int l[3], int a, int b) { return ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2]; }
+
 // True if some node of a particle's stencil (its first node at l in the span) has a value > 0 in
 // `span` (kSpanNodes + 1 floats, all >= 0; the last one is read, not used).
 inline bool stencil_reaches_positive(const float* span, const int l[3]) {
   Lane4 highest = {0.f, 0.f, 0.f, 0.f};
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
-      const Lane4 row = load_row(span + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2]);
+      const Lane4 row = load_row(span + span_row(l, a, b));
       highest = row > highest ? row : highest;
     }
   return (negative_lanes(-highest) & 7u) != 0;  // lanes 0-2: the stencil's nodes
@@ -64,16 +68,24 @@ inline bool stencil_reaches_positive(const float* span, const int l[3]) {
 // stencils a cell's particles can have).
 inline int stencil_slot(const int l[3]) { return (l[0] * kBlock + l[1]) * kBlock + l[2]; }
 
-// Bit stencil_slot(l) set where the stencil with first node l reaches a value > 0 in `span`:
-// computed once per cell instead of once per particle.
-inline uint64_t stencils_reaching_positive(const float* span) {
-  uint64_t reaching = 0;
+// Calls body(l) for the first node l in [0, 4)^3 of each of the 64 stencils of a cell's particles.
+template <class Body>
+void for_stencil_origins(const Body& body) {
   for (int l0 = 0; l0 < kBlock; ++l0)
     for (int l1 = 0; l1 < kBlock; ++l1)
       for (int l2 = 0; l2 < kBlock; ++l2) {
         const int l[3] = {l0, l1, l2};
-        if (stencil_reaches_positive(span, l)) reaching |= 1ull << stencil_slot(l);
+        body(l);
       }
+}
+
+// Bit stencil_slot(l) set where the stencil with first node l reaches a value > 0 in `span`:
+// computed once per cell instead of once per particle.
+inline uint64_t stencils_reaching_positive(const float* span) {
+  uint64_t reaching = 0;
+  for_stencil_origins([&](const int l[3]) {
+    if (stencil_reaches_positive(span, l)) reaching |= 1ull << stencil_slot(l);
+  });
   return reaching;
 }
 
@@ -89,7 +101,7 @@ inline void span_damage_gradient(const float* span, const int l[3], const AxisWe
   for (int a = 0; a < 3; ++a) {
     sum_x[a] = sum_y[a] = sum_z[a] = Lane4{0.f, 0.f, 0.f, 0.f};
     for (int b = 0; b < 3; ++b) {
-      const Lane4 row = load_row(span + ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2]);
+      const Lane4 row = load_row(span + span_row(l, a, b));
       sum_x[a] += (aw[0].dw[a] * aw[1].w[b]) * row;
       sum_y[a] += (aw[0].w[a] * aw[1].dw[b]) * row;
       sum_z[a] += (aw[0].w[a] * aw[1].w[b]) * row;
@@ -185,18 +197,15 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     }
     if (!any_key) return;
     int64_t span_keys[kSpanNodes] = {};  // the cell's largest key per node of its span
-    for (int l0 = 0; l0 < kBlock; ++l0)
-      for (int l1 = 0; l1 < kBlock; ++l1)
-        for (int l2 = 0; l2 < kBlock; ++l2) {
-          const int l[3] = {l0, l1, l2};
-          const int64_t key = origin_keys[stencil_slot(l)];
-          if (key == 0) continue;
-          for (int a = 0; a < 3; ++a)
-            for (int b = 0; b < 3; ++b) {
-              int64_t* column = span_keys + ((l0 + a) * kSpan + l1 + b) * kSpan + l2;
-              for (int c = 0; c < 3; ++c) column[c] = key > column[c] ? key : column[c];
-            }
+    for_stencil_origins([&](const int l[3]) {
+      const int64_t key = origin_keys[stencil_slot(l)];
+      if (key == 0) return;
+      for (int a = 0; a < 3; ++a)
+        for (int b = 0; b < 3; ++b) {
+          int64_t* column = span_keys + span_row(l, a, b);
+          for (int c = 0; c < 3; ++c) column[c] = key > column[c] ? key : column[c];
         }
+    });
     int64_t* keys = reference + (long long)g * nodes;
     for_span_nodes(origin, s, [&](int w, long long node) {
       if (span_keys[w] > keys[node]) keys[node] = span_keys[w];
@@ -223,7 +232,7 @@ inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], 
   uint32_t mask = 0;
   for (int a = 0; a < 3; ++a)
     for (int b = 0; b < 3; ++b) {
-      const int row = ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
+      const int row = span_row(l, a, b);
       const Lane4 dot = (gq[0] * load_row(win.reference_gradient[0] + row) +
                          gq[1] * load_row(win.reference_gradient[1] + row)) +
                         gq[2] * load_row(win.reference_gradient[2] + row);
@@ -269,7 +278,7 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
         const uint32_t column_bits = (mask >> (9 * a + 3 * b)) & 7u;
         if (column_bits == 0) continue;
         const ColumnRecords column = column_records(records, aw, a, b, dx);
-        const int row = ((l[0] + a) * kSpan + l[1] + b) * kSpan + l[2];
+        const int row = span_row(l, a, b);
         for (int c = 0; c < 3; ++c) {
           if (!(column_bits & (1u << c))) continue;
           win.field_b[row + c] += column.node_record(c);
