@@ -275,6 +275,23 @@ def halves_gap(solver, half: torch.Tensor) -> float:
     return float(cKDTree(right).query(left)[0].min())
 
 
+@pytest.mark.parametrize("grid, length", [(32, 0.3), (32, 0.4), (64, 0.4), (48, 0.25)])
+def test_precracked_bar_has_one_fractured_layer_in_the_middle(grid, length):
+    """Whatever the grid and length, exactly one particle layer (the slab) lies on the bar's centre
+    plane and is fractured from the start, with equally many layers on either side of it (a length
+    of an even number of spacings once gave no slab, and a bar that did not crack)."""
+    solver, half = precracked_bar(grid=grid, length=length, width=0.1, backend="reference")
+    x = solver.state_in_input_order().x[:, 0].double()
+    spacing = solver.geometry.dx / 2
+    layers = torch.unique(torch.round(x / (spacing / 4)))  # one value per particle layer along x
+    slab = x[half == 0]
+    assert slab.numel() > 0 and float(slab.max() - slab.min()) < 1e-6
+    assert len(layers) % 2 == 1 and abs(len(layers) * spacing - length) <= spacing
+    assert int((half < 0).sum()) == int((half > 0).sum())
+    fractured = solver.state_in_input_order().fractured
+    assert bool(fractured[half == 0].all()) and not bool(fractured[half != 0].any())
+
+
 @pytest.mark.parametrize("fragments", [True, False])
 def test_precracked_bar_comes_apart_only_with_fragments(fragments):
     solver, half = precracked_bar(grid=32, length=0.3, width=0.1, fragments=fragments)

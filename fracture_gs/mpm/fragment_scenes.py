@@ -46,11 +46,13 @@ def precracked_bar(*, grid: int = 64, length: float = 0.4, width: float = 0.1, s
     """A bar along x whose middle slab (one particle layer) starts fractured (α0 = 0.5 > 0, the
     threshold); the rest is strong NACC (α0 = −5). Halves move apart at ±speed, no gravity, no
     walls. Returns the solver and each particle's half (−1 left, +1 right, 0 the slab), in the
-    solver's initial particle order."""
+    solver's initial particle order. The length is rounded to an odd number of particle spacings,
+    so that a lattice plane lies exactly on the bar's centre for every grid."""
     domain = Domain((0, 0, 0), (1, 1, 1), grid)
     spacing = domain.dx / 2
-    centre = 0.5 + spacing / 2  # a lattice plane of particles lies exactly on x = centre
-    bar = lattice_box((centre, 0.5, 0.5), (length, width, width), spacing)
+    centre = 0.5 + spacing / 2
+    layers = 2 * max(1, round((length / spacing - 1) / 2)) + 1  # odd: the middle layer is the slab
+    bar = lattice_box((centre, 0.5, 0.5), (layers * spacing, width, width), spacing)
     offset = bar[:, 0] - centre
     half = torch.where(offset.abs() < 0.25 * spacing, 0, torch.where(offset < 0, -1, 1)).to(torch.int32)
     strong = NACCMaterial(E=1e5, nu=0.3, density=1e3, alpha0=-5.0, beta=0.3, xi=1.0, M=2.36)
