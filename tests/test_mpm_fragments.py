@@ -19,7 +19,7 @@ from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
 from fracture_gs.mpm.fragment_scenes import colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes
-from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry
+from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.types import BLOCK, Domain
 from kernel_devices import KERNEL_DEVICES
 from thread_counts import last_lines_per_thread_count
@@ -239,6 +239,23 @@ def test_fragment_clear_zeroes_only_the_given_blocks():
         cleared = cleared.repeat_interleave(BLOCK ** 3, dim=1)
         assert float(fields.mass[cleared].abs().max()) == 0.0 and bool((fields.mass[~cleared] == 1).all())
         assert float(fields.velocity[cleared].abs().max()) == 0.0
+
+
+def test_fragment_field_blocks_match_twin():
+    """The blocks of the field passes after a split (compiled, CPU) equal the torch version: touched
+    followed by the field-B keys, and the sorted union of the contact and the split blocks."""
+    geometry = GridGeometry.from_domain(Domain((0, 0, 0), (1, 1, 1), 32), 2)
+    gen = torch.Generator().manual_seed(5)
+    touched = torch.unique(torch.randint(0, 2 * geometry.n_blocks, (200,), generator=gen)).to(torch.int32)
+    contact = torch.unique(torch.randint(0, geometry.n_blocks, (40,), generator=gen)).to(torch.int32)
+    split_keys = touched[torch.randperm(len(touched), generator=gen)[:60]].sort().values
+    bins = ParticleBins(*(torch.zeros(1, dtype=torch.int32) for _ in range(5)), touched, contact)
+    compiled = ops.fragment_field_blocks(bins, split_keys, geometry, backend="cpp")
+    twin = ops.fragment_field_blocks(bins, split_keys, geometry, backend="reference")
+    for got, want in zip(compiled, twin):
+        assert got.dtype == torch.int32 and torch.equal(got, want)
+    assert torch.equal(compiled[0][len(touched):], split_keys + 2 * geometry.n_blocks)
+    assert set(compiled[1].tolist()) == set(contact.tolist()) | set((split_keys % geometry.n_blocks).tolist())
 
 
 STATE_HASH_SCRIPT = textwrap.dedent("""

@@ -243,7 +243,7 @@ inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], 
 
 // Sums the side-B share of the cell's particles into the window (particles that reach no split
 // node, or are on side A at every split node they reach, add nothing; split_particle and
-// side_mask record what each particle found).
+// side_mask record what each particle found, written for every particle of the cell).
 void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                     const FragmentView& frag, const int origin[3], PartitionWindow& win, uint8_t* split_particle,
                     int32_t* side_mask) {
@@ -257,7 +257,11 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
     int base[3];
     stencil_base(xq, geo, base);
     const int l[3] = {base[0] - origin[0], base[1] - origin[1], base[2] - origin[2]};
-    if (!stencil_bit(reaches_split, l)) continue;  // split_particle and side_mask stay 0
+    if (!stencil_bit(reaches_split, l)) {  // no split node in reach: side A everywhere
+      split_particle[q] = 0;
+      side_mask[q] = 0;
+      continue;
+    }
     split_particle[q] = 1;
     const float* dq = frag.damage_gradient + 3 * (long long)q;
     const float damage_gradient[3] = {dq[0], dq[1], dq[2]};
@@ -320,7 +324,13 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
           win.gradient_b[w] = Lane4{};
           any_split = true;
         });
-        if (!any_split) continue;  // no particle of the cell reaches a split node (split_particle stays 0)
+        if (!any_split) {  // no particle of the cell reaches a split node
+          for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
+            split_particle[bins.order[it]] = 0;
+            side_mask[bins.order[it]] = 0;
+          }
+          continue;
+        }
         partition_cell(bins, cell, p, geo, dt, frag, origin, win, split_particle, side_mask);
         // Cells of one colour span disjoint blocks, so the flags are written without races.
         uint8_t* b_blocks = side_b_block + (long long)g * n_blocks;
@@ -354,6 +364,17 @@ void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo,
       if (grid.mass[idx + field_b] != 0.f)
         split_node_fields(idx, idx + field_b, grid.mass, grid.momentum, grid.mass_gradient, grid.position_moment);
   }
+}
+
+void fragment_field_blocks_cpu(const int32_t* touched, int n_touched, const int32_t* contact_blocks, int n_contact,
+                               const int32_t* split_keys, int n_split, int n_blocks, int n_grids,
+                               std::vector<int32_t>& field_touched, std::vector<int32_t>& field_contact) {
+  field_touched.assign(touched, touched + n_touched);
+  for (int t = 0; t < n_split; ++t) field_touched.push_back(split_keys[t] + n_grids * n_blocks);
+  field_contact.assign(contact_blocks, contact_blocks + n_contact);
+  for (int t = 0; t < n_split; ++t) field_contact.push_back(split_keys[t] % n_blocks);
+  std::sort(field_contact.begin(), field_contact.end());
+  field_contact.erase(std::unique(field_contact.begin(), field_contact.end()), field_contact.end());
 }
 
 void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid) {

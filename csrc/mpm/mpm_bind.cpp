@@ -174,16 +174,28 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
               "fragment_partition: particle arrays have inconsistent sizes");
   GridArrays grid = grid_arrays(both, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
-  Tensor split_particle = torch::zeros({n}, x.options().dtype(torch::kUInt8));
-  Tensor side_mask = torch::zeros({n}, x.options().dtype(torch::kInt32));
-  Tensor split_block = torch::zeros({(int64_t)geo.n_grids * geo.shape.blocks()}, x.options().dtype(torch::kUInt8));
+  // The CPU kernel writes every particle's row; the CUDA kernel only those of split particles.
+  const bool on_cpu = x.device().is_cpu();
+  const auto rows = [&](torch::ScalarType dtype) {
+    return on_cpu ? torch::empty({n}, x.options().dtype(dtype)) : torch::zeros({n}, x.options().dtype(dtype));
+  };
+  Tensor split_particle = rows(torch::kUInt8), side_mask = rows(torch::kInt32);
+  // Flags per (grid, block) key of the K grids where field B gets mass. Only touched keys can be
+  // flagged, so on the CPU only they are cleared, and the flagged keys are read from them.
+  const int64_t k_blocks = (int64_t)geo.n_grids * geo.shape.blocks();
+  const int32_t* touched = on_cpu ? bins[5].data_ptr<int32_t>() : nullptr;
+  const int64_t n_touched = bins[5].numel();
+  Tensor split_block = on_cpu ? torch::empty({k_blocks}, x.options().dtype(torch::kUInt8))
+                              : torch::zeros({k_blocks}, x.options().dtype(torch::kUInt8));
+  uint8_t* side_b_block = split_block.data_ptr<uint8_t>();
+  for (int64_t t = 0; on_cpu && t < n_touched; ++t)
+    if (touched[t] < k_blocks) side_b_block[touched[t]] = 0;
   const FragmentView frag = fragment_view({damage_gradient, grid_reference, split_particle}, geo, split_gradient, x);
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
   Tensor color_start = bins[4].to(torch::kCPU);
   const BinsView view = bins_view(bins, color_start);
-  uint8_t* side_b_block = split_block.data_ptr<uint8_t>();
-  if (x.device().is_cpu()) {
+  if (on_cpu) {
     fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
                      side_mask.data_ptr<int32_t>(), side_b_block);
   } else {
@@ -194,8 +206,16 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
   }
-  Tensor split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
-  if (x.device().is_cpu()) {
+  Tensor split_keys;  // ascending
+  if (on_cpu) {
+    std::vector<int32_t> keys;
+    for (int64_t t = 0; t < n_touched; ++t)
+      if (touched[t] < k_blocks && side_b_block[touched[t]]) keys.push_back(touched[t]);
+    split_keys = to_tensor(keys);
+  } else {
+    split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
+  }
+  if (on_cpu) {
     fragment_merge_cpu(split_keys.data_ptr<int32_t>(), (int)split_keys.numel(), geo, grid);
   } else {
 #ifdef FGS_WITH_CUDA
@@ -203,6 +223,21 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
 #endif
   }
   return {split_particle, split_keys, side_mask};
+}
+
+// The bins the field passes use once nodes are split (CPU): (touched followed by the field-B keys,
+// the union of the contact blocks and the split blocks, ascending). See fragment_field_blocks_cpu.
+std::vector<Tensor> fragment_field_blocks(const Tensor& touched, const Tensor& contact_blocks, const Tensor& split_keys,
+                                          int64_t n_blocks, int64_t n_grids) {
+  for (const Tensor* t : {&touched, &contact_blocks, &split_keys}) {
+    check_tensor(*t, "block list", torch::kInt32, touched);
+    TORCH_CHECK(t->device().is_cpu(), "fragment_field_blocks runs on the CPU");
+  }
+  std::vector<int32_t> field_touched, field_contact;
+  fragment_field_blocks_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), contact_blocks.data_ptr<int32_t>(),
+                            (int)contact_blocks.numel(), split_keys.data_ptr<int32_t>(), (int)split_keys.numel(),
+                            (int)n_blocks, (int)n_grids, field_touched, field_contact);
+  return {to_tensor(field_touched), to_tensor(field_contact)};
 }
 
 // Zeroes every field of the given (grid, block) keys of the 2K-grid tensors (field B after a substep).
@@ -455,6 +490,8 @@ void register_mpm(pybind11::module& m) {
   m.def("mpm_g2p", &g2p, "Grid-to-particle transfer, advection and the return map");
   m.def("mpm_fragment_reference", &fragment_reference, "Fragments: damage gradients and node reference keys");
   m.def("mpm_fragment_partition", &fragment_partition, "Fragments: fields A and B at the split nodes");
+  m.def("mpm_fragment_field_blocks", &fragment_field_blocks,
+        "Fragments: touched blocks with the field-B keys, and contact blocks with the split blocks");
   m.def("mpm_fragment_clear", &fragment_clear, "Fragments: zero the fields of the given grid blocks");
 }
 

@@ -83,16 +83,22 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
                             uint32_t split_bits, const float* grid_mass, const float* grid_damage,
                             float* damage_gradient, int64_t* reference);
 // Sums field B (grid K + g) at the split nodes from the particles on side B there (field A keeps
-// P2G's sum of all particles); split_particle[q] = 1 if q's stencil reaches a split node,
-// side_mask[q] the bits (side_bit) of its stencil nodes where it is on side B (both left untouched
-// for other particles: zero them before); side_b_block[key] = 1 for the (grid, block) keys of the K
-// grids where field B got mass.
+// P2G's sum of all particles); split_particle[q] = 1 if q's stencil reaches a split node, else 0,
+// side_mask[q] the bits (side_bit) of its stencil nodes where it is on side B (both written for
+// every particle); side_b_block[key] = 1 for the (grid, block) keys of the K grids where field B
+// got mass (zero it before).
 void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                       const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
                       uint8_t* side_b_block);
 // After fragment_p2g: field A of every node with side-B mass in the given (grid, block) keys
 // becomes P2G's sum minus side B's share (split_node_fields, csrc/common/mpm_fragments.h).
 void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
+// The blocks the field passes visit once nodes are split: touched (ascending) followed by the
+// field-B keys split_keys + K * n_blocks, and the union of contact_blocks and the blocks of
+// split_keys (ascending), where fields A and B meet through the contact pass.
+void fragment_field_blocks_cpu(const int32_t* touched, int n_touched, const int32_t* contact_blocks, int n_contact,
+                               const int32_t* split_keys, int n_split, int n_blocks, int n_grids,
+                               std::vector<int32_t>& field_touched, std::vector<int32_t>& field_contact);
 // Zeroes every field of the given (grid, block) keys (field B after the substep).
 void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 

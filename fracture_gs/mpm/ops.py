@@ -109,6 +109,21 @@ def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: 
                                         split_gradient, grid)
 
 
+def fragment_field_blocks(bins: ParticleBins, split_keys: torch.Tensor, geometry: GridGeometry,
+                          backend: str = "auto") -> tuple[torch.Tensor, torch.Tensor]:
+    """The blocks the field passes visit once nodes are split: (``bins.touched`` followed by the
+    field-B keys ``split_keys + K * n_blocks``, the union of ``bins.contact_blocks`` and the blocks
+    of ``split_keys``, ascending), int32. ``geometry``: the K object grids."""
+    if split_keys.device.type == "cpu" and use_compiled(split_keys.device, backend):
+        field_touched, field_contact = compiled_module().mpm_fragment_field_blocks(
+            bins.touched, bins.contact_blocks, split_keys, geometry.n_blocks, geometry.n_grids)
+        return field_touched, field_contact
+    field_b = split_keys + geometry.n_grids * geometry.n_blocks
+    field_contact = torch.unique(torch.cat([bins.contact_blocks, split_keys % geometry.n_blocks]))
+    return (torch.cat([bins.touched, field_b]).to(torch.int32).contiguous(),
+            field_contact.to(torch.int32).contiguous())
+
+
 def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields, backend: str = "auto") -> None:
     """Zero every field of the given (grid, block) keys (``geometry`` of all 2K grids)."""
     if use_compiled(grid.mass.device, backend):

@@ -196,10 +196,8 @@ class CollisionMPM:
             self.split_gradient, g, self.backend)
         if len(split_keys) == 0:
             return bins, None
-        field_b = split_keys + self.n_grids * geo.n_blocks
-        contact_blocks = torch.unique(torch.cat([bins.contact_blocks, split_keys % geo.n_blocks]))
-        field_bins = dataclasses.replace(bins, touched=torch.cat([bins.touched, field_b]).contiguous(),
-                                         contact_blocks=contact_blocks.to(torch.int32).contiguous())
+        touched, contact_blocks = ops.fragment_field_blocks(bins, split_keys, geo, self.backend)
+        field_bins = dataclasses.replace(bins, touched=touched, contact_blocks=contact_blocks)
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
                                           self.split_gradient, side_mask.contiguous())
 
