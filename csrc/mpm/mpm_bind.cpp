@@ -212,12 +212,9 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
     for (int64_t t = 0; t < n_touched; ++t)
       if (touched[t] < k_blocks && side_b_block[touched[t]]) keys.push_back(touched[t]);
     split_keys = to_tensor(keys);
-  } else {
-    split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
-  }
-  if (on_cpu) {
     fragment_merge_cpu(split_keys.data_ptr<int32_t>(), (int)split_keys.numel(), geo, grid);
   } else {
+    split_keys = torch::nonzero(split_block).flatten().to(torch::kInt32).contiguous();
 #ifdef FGS_WITH_CUDA
     fragment_merge_cuda(split_keys.data_ptr<int32_t>(), (int)split_keys.numel(), geo, grid, current_cuda_stream());
 #endif
