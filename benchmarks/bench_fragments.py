@@ -58,10 +58,10 @@ def run(solver, duration: float, samples: int = 30) -> dict:
             "split_particle_steps": split}
 
 
-def block_result(name: str, fragments: bool, grid: int, duration: float, speed: float | None = None) -> dict:
-    """One block drop of scene ``name`` (at ``speed`` if given, else the scene's own)."""
+def block_result(name: str, fragments: bool, grid: int, duration: float, speed_factor: float = 1.0) -> dict:
+    """One block drop of scene ``name`` at ``speed_factor`` times its speed."""
     scene_speed, E, density, alpha0, beta, _ = BLOCKS[name]
-    speed = scene_speed if speed is None else speed
+    speed = speed_factor * scene_speed
     solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=grid, fragments=fragments)
     out = run(solver, duration)
     sizes = fragment_sizes(solver.fragment_ids())
@@ -116,7 +116,7 @@ def main() -> None:
             continue
         if args.speed_factors:
             for factor in args.speed_factors:
-                record(block_result(name, True, args.grid, args.duration, factor * BLOCKS[name][0]))
+                record(block_result(name, True, args.grid, args.duration, factor))
         else:
             for fragments in settings:
                 record(block_result(name, fragments, args.grid, args.duration))
