@@ -74,7 +74,7 @@ PROFILES = {
 
 # Table 1 of the paper (teapot, table top, legs) as printed: E, nu, density, NACC (Jp0, beta, xi, M).
 # The wave speeds sqrt(E / density) of these values (316, 122 and 316 units/s) set how stiff each
-# part is against the 4 m/s impact; configs/teapot_table.yaml keeps the older, softened set
+# part is against the 4 m/s impact; the scenes in configs/ keep the older, softened set
 # (densities x100, table top E x10, elastic legs E 2e6), which simulates ~7x faster but lets the
 # table top stretch like a hammock and the legs bend.
 TEAPOT_MATERIAL = {"part": 0, "model": "nacc", "E": 5.0e5, "nu": 0.46, "density": 5,
