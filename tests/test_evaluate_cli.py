@@ -119,12 +119,22 @@ def test_bad_input_is_one_line_and_exit_2(sim: Path, argv: list[str], needle: st
 def test_compare_gives_the_ablation_rows(sim: Path, tmp_path: Path) -> None:
     out = tmp_path / "eval"
     assert evaluate_main(["--sim", str(sim), "--compare", "--mls", str(sim), "--out", str(out),
-                          "--no-fid", "--no-lpips", "--views", "orbit:1", "--resolution", "32",
+                          "--no-fid", "--no-lpips", "--views", "orbit:2", "--resolution", "32",
                           "32", "--quiet"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert [r["fpgo"] for r in metrics["runs"]] == [True, False, False]
     report = (out / "report.md").read_text()
     assert "paper: ours" in report and "90.75" in report
+    # paired: ours against each baseline (here the "mls" run is the same simulation, no FPGO)
+    means = [r["metrics"]["psnr"]["mean"] for r in metrics["runs"]]
+    to_nofpgo, to_mls = metrics["paired"]
+    assert to_nofpgo["second"] == metrics["runs"][1]["label"]
+    assert to_nofpgo["psnr"]["advantage"] == pytest.approx(means[0] - means[1])
+    assert to_mls["psnr"] == to_nofpgo["psnr"]
+    low, high = to_nofpgo["psnr"]["interval"]
+    assert low <= to_nofpgo["psnr"]["advantage"] <= high and to_nofpgo["psnr"]["views"] == 2
+    assert "lpips" not in to_nofpgo and "fid" not in to_nofpgo     # --no-lpips --no-fid
+    assert "## Paired comparison" in report
 
 
 def test_static_model_metrics_match_the_pngs(tmp_path: Path) -> None:

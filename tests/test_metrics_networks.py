@@ -10,8 +10,8 @@ import torch
 from torchmetrics.image.fid import FrechetInceptionDistance
 
 from fracture_gs.data.images import read_image
-from fracture_gs.metrics.fid import (InceptionFeatures, SmallSetFID, add_images, frechet_distance,
-                                     new_fid_metric, resize_bilinear_tf1)
+from fracture_gs.metrics.fid import (InceptionFeatures, frechet_distance_from_features,
+                                     image_features, resize_bilinear_tf1)
 from fracture_gs.metrics.lpips_alex import LpipsAlex, hwio_to_oihw, read_alexnet_checkpoint
 from fracture_gs.metrics.protocol import MetricNetworks, self_referenced_metrics
 from fracture_gs.metrics.weights import (FID_INCEPTION, LPIPS_ALEXNET, WeightsUnavailable,
@@ -149,17 +149,30 @@ class _PooledLinear(torch.nn.Module):
         return torch.nn.functional.adaptive_avg_pool2d(images, 4).flatten(1) @ self.weight
 
 
-@pytest.mark.parametrize("n_reference, n_compared", [(2, 2), (5, 9), (9, 4), (70, 90)])
-def test_small_set_fid_equals_torchmetrics(n_reference, n_compared):
+@pytest.mark.parametrize("n_reference, n_compared", [(2, 2), (5, 9), (9, 4), (8, 40), (70, 90)])
+def test_fid_from_features_equals_torchmetrics(n_reference, n_compared):
+    """The singular-value form (fewer images than features, and more: 70 / 90 > 64) against
+    torchmetrics' FrechetInceptionDistance on the same feature extractor."""
     generator = torch.Generator().manual_seed(n_reference * 100 + n_compared)
     reference = torch.rand(n_reference, 3, 8, 8, generator=generator)
     compared = torch.rand(n_compared, 3, 8, 8, generator=generator) ** 2
     features = _PooledLinear()
-    ours, theirs = SmallSetFID(feature=features, normalize=True), FrechetInceptionDistance(feature=features, normalize=True)
-    for metric in (ours, theirs):
-        metric.update(reference, real=True)
-        metric.update(compared, real=False)
-    assert float(ours.compute()) == pytest.approx(float(theirs.compute()), rel=1e-4)
+    theirs = FrechetInceptionDistance(feature=features, normalize=True)
+    theirs.update(reference, real=True)
+    theirs.update(compared, real=False)
+    ours = frechet_distance_from_features(
+        image_features(features, reference.permute(0, 2, 3, 1), CPU, batch_size=4),
+        image_features(features, compared.permute(0, 2, 3, 1), CPU, batch_size=4))
+    assert ours == pytest.approx(float(theirs.compute()), rel=1e-4)
+
+
+def test_fid_from_features_rejects_bad_sets():
+    rows = torch.rand(5, 16, dtype=torch.float64)
+    with pytest.raises(ValueError, match="at least 2 images"):
+        frechet_distance_from_features(rows[:1], rows)
+    with pytest.raises(ValueError, match="same D"):
+        frechet_distance_from_features(rows, rows[:, :8])
+    assert abs(frechet_distance_from_features(rows, rows)) < 1e-9
 
 
 def test_inception_features_follow_the_fid_helper_convention(inception):
@@ -175,19 +188,15 @@ def test_inception_features_follow_the_fid_helper_convention(inception):
 
 
 def test_fid_self_is_zero_and_grows_with_noise(inception):
-    images = _scenes(3)                # 3 images per set: 15 Inception passes in all
-    metric = SmallSetFID(feature=inception, normalize=True, reset_real_features=False)
-    add_images(metric, images, reference=True)
-    add_images(metric, images, reference=False)
-    self_fid = frechet_distance(metric)
+    images = _scenes(3)                # 3 images per set: 12 Inception passes in all
+    reference = image_features(inception, images, CPU)
+    self_fid = frechet_distance_from_features(reference, image_features(inception, images, CPU))
     assert abs(self_fid) < 1e-2
     rng = np.random.default_rng(1)
     scores = []
     for sigma in (0.02, 0.08, 0.25):
-        metric.reset()                 # keeps the reference features
         noisy = np.clip(images + rng.normal(0, sigma, images.shape), 0, 1).astype(np.float32)
-        add_images(metric, noisy, reference=False)
-        scores.append(frechet_distance(metric))
+        scores.append(frechet_distance_from_features(reference, image_features(inception, noisy, CPU)))
     assert self_fid < scores[0] < scores[1] < scores[2], scores
     assert scores[0] > 1.0
 
@@ -209,6 +218,12 @@ def test_protocol_with_networks(lpips_alex, inception):
     summary = result.to_json()
     assert summary["fid"] == pytest.approx(result.fid)
     assert summary["lpips"]["per_view"][1][1] == pytest.approx(float(result.lpips[1, 1]))
+    assert result.reference_features.shape == (2, 2048)
+    assert result.window_features.shape == (2, 2, 2048)
+    assert "reference_features" not in summary
+    assert frechet_distance_from_features(
+        torch.from_numpy(result.reference_features),
+        torch.from_numpy(result.window_features.reshape(4, -1))) == pytest.approx(result.fid)
 
 
 def test_unlisted_package_is_named_in_the_message(monkeypatch):

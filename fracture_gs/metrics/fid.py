@@ -5,14 +5,12 @@ input in TF's range (-1, 0.9921875) = (x·255 − 128)/128. Its package prepares
 follows (``FidHelper.update_*_stat``): clamp to [0, 1], round to 8 bits, resize to 299×299
 with the TF1 bilinear rule (output pixel j samples input coordinate j·W_in/W_out, no
 half-pixel offset, border clamped; its ``nv_bilinear``), then map to the model's range.
-:class:`InceptionFeatures` does the same in torch and is handed to torchmetrics'
-``FrechetInceptionDistance`` as a custom feature extractor (no torch-fidelity needed).
+:class:`InceptionFeatures` does the same in torch (no torch-fidelity needed).
 
-torchmetrics evaluates tr√(Σ₁Σ₂) with ``eigvals`` of a 2048×2048 non-symmetric matrix, which
-takes minutes on a 2-core CPU. Self-referenced sets are small (tens of images), so the
-covariances have rank ≤ N − 1 and :class:`SmallSetFID` computes the same quantity in that
-subspace (exact up to round-off); sets larger than the feature dimension use torchmetrics'
-own formula.
+The features of every image are kept (:func:`image_features`), so that a comparison can
+resample images (:mod:`fracture_gs.metrics.paired`); :func:`frechet_distance_from_features`
+is torchmetrics' ``FrechetInceptionDistance`` formula evaluated through the singular values of
+an N_r × N_c matrix instead of the square root of a 2048 × 2048 one (the tests compare the two).
 """
 from __future__ import annotations
 
@@ -23,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
-from torchmetrics.image.fid import FrechetInceptionDistance
 
 from fracture_gs.metrics.batches import batch_slices, channels_first, image_batch
 from fracture_gs.metrics.weights import FID_INCEPTION, WeightsUnavailable, verified_weights
@@ -99,68 +96,48 @@ class InceptionFeatures(nn.Module):
         return cls(network, quantize).to(device)
 
 
-def _trace_sqrt_product_low_rank(cov_small: torch.Tensor, cov_other: torch.Tensor,
-                                 rank_bound: int) -> torch.Tensor:
-    """tr √(Σ_s Σ_o) for PSD matrices when rank(Σ_s) ≤ ``rank_bound`` ≪ dimension.
+def image_features(features: nn.Module, images: torch.Tensor | np.ndarray, device: torch.device,
+                   batch_size: int = 8) -> torch.Tensor:
+    """Feature rows ``(N, D)`` (float64, on the CPU) of ``(N, H, W, 3)`` images in [0, 1],
+    ``batch_size`` images at a time through ``features`` (e.g. :class:`InceptionFeatures`)."""
+    batch = image_batch(images, "images")
+    rows = []
+    with torch.no_grad():
+        for part in batch_slices(batch.shape[0], batch_size):
+            rows.append(features(channels_first(batch[part]).to(device)).double().cpu())
+    return torch.cat(rows)
 
-    Q (orthonormal, from Σ_s Ω for a fixed Gaussian Ω with ``rank_bound`` columns) spans
-    the range of Σ_s, so with B = QᵀΣ_sQ the non-zero eigenvalues of Σ_sΣ_o are those of
-    B^½ (QᵀΣ_oQ) B^½, a small symmetric PSD matrix.
+
+def _centred_factor(rows: torch.Tensor) -> torch.Tensor:
+    """R with RᵀR = the sample covariance of ``rows`` (N, D): the triangular factor of the
+    centred rows / sqrt(N − 1), min(N, D) × D."""
+    centred = (rows - rows.mean(dim=0)) / math.sqrt(rows.shape[0] - 1)
+    if centred.shape[0] <= centred.shape[1]:
+        return centred
+    return torch.linalg.qr(centred, mode="r")[1]
+
+
+def frechet_distance_from_features(reference: torch.Tensor, compared: torch.Tensor) -> float:
+    """The Fréchet distance of two feature sets (rows), exact for any set sizes:
+
+    ``|μ_r − μ_c|² + tr Σ_r + tr Σ_c − 2 tr √(Σ_r Σ_c)``. With Σ_r = AᵀA and Σ_c = BᵀB (A, B the
+    centred rows / √(N − 1), reduced to their triangular factor when N > D), the non-zero
+    eigenvalues of Σ_r Σ_c are those of (ABᵀ)(ABᵀ)ᵀ, so tr √(Σ_r Σ_c) is the sum of the singular
+    values of ABᵀ, an N_r × N_c matrix: no D × D square root (torchmetrics diagonalises a
+    2048 × 2048 matrix). Raises ValueError for fewer than 2 rows in a set, RuntimeError for a
+    non-finite result.
     """
-    generator = torch.Generator(device="cpu").manual_seed(0)
-    probe = torch.randn(cov_small.shape[0], rank_bound, generator=generator, dtype=cov_small.dtype)
-    basis, _ = torch.linalg.qr(cov_small @ probe.to(cov_small.device))
-    small = basis.T @ cov_small @ basis
-    eigenvalues, eigenvectors = torch.linalg.eigh((small + small.T) / 2)
-    small_sqrt = eigenvectors @ torch.diag(eigenvalues.clamp(min=0).sqrt()) @ eigenvectors.T
-    middle = small_sqrt @ (basis.T @ cov_other @ basis) @ small_sqrt
-    return torch.linalg.eigvalsh((middle + middle.T) / 2).clamp(min=0).sqrt().sum()
-
-
-class SmallSetFID(FrechetInceptionDistance):
-    """torchmetrics' FID (``real`` = reference set, ``fake`` = compared set) whose ``compute``
-    works in the span of the smaller set when it has fewer images than feature dimensions."""
-
-    def compute(self) -> torch.Tensor:
-        counts = (int(self.real_features_num_samples), int(self.fake_features_num_samples))
-        dimension = self.real_features_sum.numel()
-        if min(counts) < 2:
-            raise RuntimeError(f"FID needs at least 2 images per set, got {counts[0]} and {counts[1]}")
-        if min(counts) > dimension:
-            return super().compute()
-        stats = []
-        for total, cov_total, count in ((self.real_features_sum, self.real_features_cov_sum, counts[0]),
-                                        (self.fake_features_sum, self.fake_features_cov_sum, counts[1])):
-            mean = total / count
-            stats.append((mean, (cov_total - count * torch.outer(mean, mean)) / (count - 1)))
-        (mean_real, cov_real), (mean_fake, cov_fake) = stats
-        if counts[0] <= counts[1]:
-            trace_sqrt = _trace_sqrt_product_low_rank(cov_real, cov_fake, counts[0])
-        else:
-            trace_sqrt = _trace_sqrt_product_low_rank(cov_fake, cov_real, counts[1])
-        value = (mean_real - mean_fake).square().sum() + cov_real.trace() + cov_fake.trace() - 2 * trace_sqrt
-        return value.to(self.orig_dtype)
-
-
-def new_fid_metric(features: nn.Module, device: torch.device) -> SmallSetFID:
-    """A fresh FID accumulator around a feature extractor (moved to ``device``)."""
-    return SmallSetFID(feature=features, normalize=True).to(device)
-
-
-def add_images(metric: SmallSetFID, images: torch.Tensor | np.ndarray, reference: bool,
-               batch_size: int = 8) -> int:
-    """Feed ``(N, H, W, 3)`` images in [0, 1] to ``metric`` as the reference (``real``) or the
-    compared set, ``batch_size`` at a time. Returns N."""
-    batch = image_batch(images, "reference images" if reference else "compared images")
-    device = metric.real_features_sum.device
-    for rows in batch_slices(batch.shape[0], batch_size):
-        metric.update(channels_first(batch[rows]).to(device), real=reference)
-    return int(batch.shape[0])
-
-
-def frechet_distance(metric: SmallSetFID) -> float:
-    """The FID of the accumulated sets as a float (NaN never hidden: raised as an error)."""
-    value = float(metric.compute())
+    reference, compared = reference.double(), compared.double()
+    if reference.dim() != 2 or compared.dim() != 2 or reference.shape[1] != compared.shape[1]:
+        raise ValueError(f"feature sets must be (N, D) with the same D, got "
+                         f"{tuple(reference.shape)} and {tuple(compared.shape)}")
+    if min(reference.shape[0], compared.shape[0]) < 2:
+        raise ValueError(f"FID needs at least 2 images per set, got {reference.shape[0]} and "
+                         f"{compared.shape[0]}")
+    factor_r, factor_c = _centred_factor(reference), _centred_factor(compared)
+    trace_sqrt = torch.linalg.svdvals(factor_r @ factor_c.T).sum()
+    value = float((reference.mean(dim=0) - compared.mean(dim=0)).square().sum()
+                  + factor_r.square().sum() + factor_c.square().sum() - 2.0 * trace_sqrt)
     if not math.isfinite(value):
         raise RuntimeError(f"FID is not finite ({value})")
     return value

@@ -3,7 +3,9 @@
 Per view, every window frame is compared with the same view's reference frame I_ref (the
 last intact frame): PSNR and LPIPS per image pair, and FID between the set of reference
 renders (one per view) and the set of window renders (all views × window frames). FID with
-so few images is strongly biased, so the result carries N and a warning.
+so few images is strongly biased, so the result carries N and a warning. The per-view values
+and the Inception features of every image are kept, so that two runs can be compared view by
+view (:mod:`fracture_gs.metrics.paired`).
 
 Networks are loaded once (:class:`MetricNetworks`) and reused for every run compared; a
 network whose weights are missing is reported as unavailable with the file expected.
@@ -19,8 +21,8 @@ import numpy as np
 import torch
 
 from fracture_gs.metrics.batches import image_batch
-from fracture_gs.metrics.fid import (INCEPTION_FEATURES, InceptionFeatures, add_images,
-                                     frechet_distance, new_fid_metric)
+from fracture_gs.metrics.fid import (INCEPTION_FEATURES, InceptionFeatures,
+                                     frechet_distance_from_features, image_features)
 from fracture_gs.metrics.lpips_alex import LpipsAlex
 from fracture_gs.metrics.weights import WeightsUnavailable
 
@@ -76,7 +78,9 @@ def fid_bias_warning(n_reference: int, n_window: int) -> str | None:
 
 @dataclass
 class SelfReferencedMetrics:
-    """Metrics of one run: ``psnr`` / ``lpips`` are (views, window frames) arrays."""
+    """Metrics of one run: ``psnr`` / ``lpips`` are (views, window frames) arrays;
+    ``reference_features`` (views, D) and ``window_features`` (views, window frames, D) are the
+    Inception features FID came from (None without FID; not written to JSON)."""
 
     psnr: np.ndarray
     lpips: np.ndarray | None
@@ -86,6 +90,8 @@ class SelfReferencedMetrics:
     lpips_unavailable: str | None = None
     fid_unavailable: str | None = None
     fid_warning: str | None = None
+    reference_features: np.ndarray | None = None
+    window_features: np.ndarray | None = None
 
     def to_json(self) -> dict:
         """Means and per-view values as plain JSON (+inf PSNR of identical images as "inf")."""
@@ -129,16 +135,21 @@ def self_referenced_metrics(reference_images: torch.Tensor | np.ndarray,
 
     n_reference, n_window = int(references.shape[0]), int(window_flat.shape[0])
     fid, fid_unavailable = None, networks.fid_unavailable
+    reference_features = window_features = None
     if networks.inception is not None:
         if min(n_reference, n_window) < 2:
             fid_unavailable = (f"unavailable: FID needs at least 2 images per set "
                                f"(got {n_reference} reference, {n_window} window)")
         else:
-            metric = new_fid_metric(networks.inception, networks.device)
-            add_images(metric, references, reference=True, batch_size=batch_size)
-            add_images(metric, window_flat, reference=False, batch_size=batch_size)
-            fid = frechet_distance(metric)
+            reference_rows = image_features(networks.inception, references, networks.device,
+                                            batch_size)
+            window_rows = image_features(networks.inception, window_flat, networks.device,
+                                         batch_size)
+            fid = frechet_distance_from_features(reference_rows, window_rows)
+            reference_features = reference_rows.numpy()
+            window_features = window_rows.reshape(views, frames, -1).numpy()
     return SelfReferencedMetrics(
         psnr=psnr, lpips=lpips, fid=fid, n_reference=n_reference, n_window=n_window,
         lpips_unavailable=networks.lpips_unavailable, fid_unavailable=fid_unavailable,
-        fid_warning=fid_bias_warning(n_reference, n_window) if fid is not None else None)
+        fid_warning=fid_bias_warning(n_reference, n_window) if fid is not None else None,
+        reference_features=reference_features, window_features=window_features)

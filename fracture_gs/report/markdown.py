@@ -60,6 +60,37 @@ def comparison_rows(runs: Sequence[dict]) -> list[list[object]]:
 COMPARISON_HEADER = ("run", "PSNR ↑ [dB]", "LPIPS ↓", "FID ↓", "N (ref / window)", "window")
 
 
+PAIRED_HEADER = ("first vs", "PSNR advantage [dB]", "views better (PSNR)", "LPIPS advantage",
+                 "views better (LPIPS)", "FID advantage", "verdict (PSNR / LPIPS / FID)")
+PAIRED_DIGITS = {"psnr": 3, "lpips": 4, "fid": 2}
+
+
+def advantage_text(difference: dict, metric: str) -> str:
+    """'+0.012 [−0.030, +0.051]' of a ``PairedDifference.to_json()`` dict."""
+    digits = PAIRED_DIGITS[metric]
+    low, high = difference["interval"]
+    return f"{difference['advantage']:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]"
+
+
+def paired_rows(comparisons: Sequence[dict]) -> list[list[object]]:
+    """One table row per paired comparison (``paired_comparisons`` dicts); '—' where a metric
+    is missing."""
+    rows = []
+    for comparison in comparisons:
+        row: list[object] = [comparison["second"]]
+        verdicts = []
+        for metric in ("psnr", "lpips", "fid"):
+            difference = comparison.get(metric)
+            row.append(advantage_text(difference, metric) if difference else None)
+            if metric != "fid":
+                row.append(f"{difference['views_better']} of {difference['views']}"
+                           if difference else None)
+            verdicts.append(difference["verdict"] if difference else "—")
+        row.append(" / ".join(verdicts))
+        rows.append(row)
+    return rows
+
+
 def unavailable_notes(runs: Sequence[dict]) -> list[str]:
     """The distinct 'unavailable: expected <file>' lines and FID warnings of the runs."""
     notes: list[str] = []

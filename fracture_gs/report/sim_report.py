@@ -9,9 +9,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fracture_gs.experiments.sim_eval import EvalOptions, RunResult, RunSpec, evaluate_run
+from fracture_gs.metrics.paired import DEFAULT_CONFIDENCE, paired_differences
 from fracture_gs.metrics.protocol import MetricNetworks
 from fracture_gs.mpm.output import write_text_atomic
-from fracture_gs.report.markdown import (COMPARISON_HEADER, PAPER_ABLATION, comparison_rows, table,
+from fracture_gs.report.markdown import (COMPARISON_HEADER, PAIRED_HEADER, PAPER_ABLATION,
+                                         advantage_text, comparison_rows, paired_rows, table,
                                          unavailable_notes, write_report)
 from fracture_gs.report.plots import diagnostics_plots, frame_strip
 
@@ -47,6 +49,9 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
     for note in unavailable_notes(runs):
         body += f"\n* {note}"
     sections.append(("Fracture metrics", body))
+    paired = paired_comparisons(results)
+    if paired:
+        sections.append(("Paired comparison", paired_section(paired)))
 
     strip_rows = [(result.spec.label, result.strip,
                    [f"ref {f}" if i == 0 else f"t={f}" for i, f in enumerate(result.strip_frames)])
@@ -77,11 +82,41 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
                          + f"\n![momentum]({momentum_png.name})\n\n![energy]({energy_png.name})\n"))
 
     metrics = {"title": title, "views": options.views, "resolution": list(options.resolution),
-               "window": options.window, "runs": runs, "conservation": conservation,
+               "window": options.window, "runs": runs, "paired": paired, "conservation": conservation,
                "seconds": time.perf_counter() - started}
     write_text_atomic(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     write_report(out_dir / "report.md", title, sections)
     return metrics
+
+
+def paired_comparisons(results: Sequence[RunResult]) -> list[dict]:
+    """The first run against each other run with metrics on the same (views, window frames):
+    :func:`fracture_gs.metrics.paired.paired_differences` as JSON."""
+    first = results[0].metrics if results else None
+    if first is None:
+        return []
+    comparisons = []
+    for other in results[1:]:
+        if other.metrics is None or other.metrics.psnr.shape != first.psnr.shape \
+                or other.view_names != results[0].view_names:
+            continue
+        differences = paired_differences(first, other.metrics)
+        comparisons.append({"first": results[0].spec.label, "second": other.spec.label,
+                            **{name: d.to_json() for name, d in differences.items()}})
+    return comparisons
+
+
+def paired_section(paired: Sequence[dict]) -> str:
+    """Markdown of the paired comparisons: the table and how to read it."""
+    views = next((c[m]["views"] for c in paired for m in ("psnr", "lpips", "fid") if m in c), 0)
+    return (table(PAIRED_HEADER, paired_rows(paired))
+            + f"\nAdvantage of `{paired[0]['first']}` over each other run (positive: closer to "
+            "the intact reference; PSNR(first) − PSNR(other), LPIPS(other) − LPIPS(first), "
+            f"FID(other) − FID(first)), with its {DEFAULT_CONFIDENCE:.0%} interval from a bootstrap "
+            f"over the {views} views (views drawn with replacement, the window frames of a view "
+            "kept together; FID recomputed on each draw) and the number of views whose window "
+            "mean is better. An interval that contains 0 means these views cannot tell the two "
+            "runs apart.\n")
 
 
 def print_comparison(metrics: dict, with_paper: bool = False) -> str:
@@ -95,4 +130,8 @@ def print_comparison(metrics: dict, with_paper: bool = False) -> str:
                                                                               is not None else "—")
         lines.append(f"{label:<{width}}{cell(psnr, 2):>9}{cell(lpips, 3):>9}{cell(fid, 2):>10}  "
                      f"{n if n else '—'}")
+    for comparison in metrics.get("paired", []):
+        lines.append(f"{comparison['first']} vs {comparison['second']}: " + "; ".join(
+            f"{name.upper()} {advantage_text(comparison[name], name)}"
+            for name in ("psnr", "lpips", "fid") if name in comparison))
     return "\n".join(lines)
