@@ -5,7 +5,8 @@
   loss, backward, Adam, offset projection) with the default 40,000 isotropic Gaussians.
 * SDF refinement: seconds per NeuS-style refinement iteration (1024 rays in 8x8 patches,
   pre-pass + 40 differentiable samples, patch-NCC photo-consistency, mask, eikonal and
-  Laplacian terms, Adam) at the coarse and the fine level of a 128-cell grid.
+  Laplacian terms, Adam) at the coarse and the fine level of train.py's default grid
+  (``--sdf-res``, 160 cells along the longest side).
 
 By default the scene is synthetic (a textured sphere rendered with the project's rasterizer
 into 24 views, so no dataset is needed); ``--source data/teapot`` times a real dataset.
@@ -32,6 +33,7 @@ from fracture_gs.data import Dataset, load_dataset  # noqa: E402
 from fracture_gs.gaussians import GaussianModel  # noqa: E402
 from fracture_gs.recon.gaussian_fit import FitSettings, fit_gaussians, new_fit_state  # noqa: E402
 from fracture_gs.recon.hull import visual_hull  # noqa: E402
+from fracture_gs.recon.pipeline import TrainConfig  # noqa: E402
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf  # noqa: E402
 from fracture_gs.render import Camera, rasterize  # noqa: E402
 
@@ -84,8 +86,8 @@ def bench_gaussians(dataset: Dataset, count: int, steps: int) -> dict:
             "ms_per_iteration_cpu": 1000 * cpu / steps}
 
 
-def bench_refinement(dataset: Dataset, steps: int) -> dict:
-    hull = visual_hull(dataset, 128, torch.device("cpu"))
+def bench_refinement(dataset: Dataset, steps: int, sdf_res: int) -> dict:
+    hull = visual_hull(dataset, sdf_res, torch.device("cpu"))
     result = {}
     for level, fraction in (("coarse", 1.0), ("fine", 0.0)):
         marks: list[tuple[float, float]] = []
@@ -105,6 +107,8 @@ def main() -> int:
     parser.add_argument("--source", default=None, help="dataset folder (default: synthetic)")
     parser.add_argument("--gaussians", type=int, default=40_000)
     parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--sdf-res", type=int, default=TrainConfig.sdf_res,
+                        help="SDF grid cells along the longest side (default: train.py's)")
     parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
     if args.threads:
@@ -116,7 +120,7 @@ def main() -> int:
     report = {"threads": torch.get_num_threads(),
               "scene": args.source or "synthetic sphere, 24 views",
               "gaussian_stage": bench_gaussians(dataset, args.gaussians, args.steps),
-              "sdf_refinement": bench_refinement(dataset, args.steps)}
+              "sdf_refinement": bench_refinement(dataset, args.steps, args.sdf_res)}
     print(json.dumps(report, indent=2))
     return 0
 

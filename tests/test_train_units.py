@@ -311,6 +311,70 @@ def test_carving_removes_the_free_space_that_depth_maps_see_and_nothing_else() -
     assert np.all(nodes[..., 2][flipped] > 0.2 - 3 * grid.voxel)
 
 
+def _plane_depth_map(view: int, eye: np.ndarray, size: int, plane_z: float) -> "DepthMap":
+    """Depth map (camera z) of the plane z = ``plane_z`` seen from ``eye`` (looking at the origin)."""
+    from fracture_gs.recon.carving import DepthMap
+    camera = Camera.look_at(eye, (0, 0, 0), (0, 1, 0), fov_x_rad=0.6, width=size, height=size)
+    origin, direction = _pixel_rays(camera, size)
+    depth = (plane_z - origin[2]) / direction[..., 2]
+    return DepthMap(view, camera, depth.astype(np.float32))
+
+
+def test_depth_fusion_keeps_confirmed_and_single_depths_and_drops_seen_through_ones() -> None:
+    """A depth two nearby maps agree with is confirmed; one that only one agrees with is kept as
+    'single' unless another map sees a surface behind it (its ray passes through the point)."""
+    from fracture_gs.recon.carving import CarveSettings, DepthMap, consistent_depths
+    eyes = [np.array([x, 0.0, 3.0]) for x in (0.0, 0.3, -0.3, 0.6)]
+    directions = np.stack([eye / np.linalg.norm(eye) for eye in eyes])
+    truth = [_plane_depth_map(v, eye, 32, 0.0) for v, eye in enumerate(eyes)]
+    behind = _plane_depth_map(2, eyes[2], 32, -0.5)        # map 2 sees a surface 0.5 lower
+    blank = DepthMap(2, truth[2].camera, np.full_like(truth[2].depth, np.nan))
+    blank3 = DepthMap(3, truth[3].camera, np.full_like(truth[3].depth, np.nan))
+    settings = CarveSettings(neighbours=3, consistent_views=2)
+    voxel = 0.02
+
+    def kinds(maps: list) -> tuple[float, float]:
+        confirmed, single = consistent_depths(maps, directions, voxel, settings)
+        return (float(np.isfinite(confirmed[0].depth).mean()),
+                float(np.isfinite(single[0].depth).mean()))
+
+    assert kinds(truth) == (1.0, 0.0)                            # 3 maps agree with map 0
+    assert kinds([truth[0], truth[1], blank, blank3]) == (0.0, 1.0)   # only map 1 does
+    assert kinds([truth[0], truth[1], behind, blank3]) == (0.0, 0.0)  # map 2 sees through it
+
+
+def test_single_confirmed_depths_carve_where_enough_of_them_agree() -> None:
+    """The pit of the carving test, seen only by single-confirmed depths: carved when at least
+    ``single_view_votes`` of them see a node as free space, untouched when fewer can."""
+    from fracture_gs.recon.carving import CarveSettings, carve_with_depth
+    grid = VoxelGrid((-1.0, -1.0, -1.0), 2.0 / 32, (33, 33, 33))
+    nodes = grid.node_positions(dtype=torch.float64).numpy()
+    hull = torch.from_numpy(np.max(np.abs(nodes) - 0.6, axis=-1)).float()
+
+    def inside(points: np.ndarray) -> np.ndarray:
+        in_pit = (np.hypot(points[..., 0], points[..., 1]) < 0.3) & (points[..., 2] > 0.2)
+        return np.all(np.abs(points) < 0.6, axis=-1) & ~in_pit
+
+    eyes = [np.array([0.4 * math.cos(a), 0.4 * math.sin(a), 3.0])
+            for a in np.linspace(0, 2 * math.pi, 6, endpoint=False)]
+    maps = [_pit_depth_map(v, eye, 48, inside) for v, eye in enumerate(eyes)]
+    carved, count = carve_with_depth(hull, grid, [], CarveSettings(single_view_votes=3,
+                                                                   margin_voxels=2.0), maps)
+    assert count > 0
+    assert float(sample_dense(carved.double(), grid,
+                              torch.tensor([[0.0, 0.0, 0.45]], dtype=torch.float64))[0]) > 0
+    _, none = carve_with_depth(hull, grid, [], CarveSettings(single_view_votes=7), maps)
+    assert none == 0                                             # only 6 maps: never 7 votes
+
+
+def test_carve_settings_reject_bad_scales() -> None:
+    from fracture_gs.recon.carving import CarveSettings
+    with pytest.raises(ValueError, match="window odd"):
+        CarveSettings(scales=((2, 8),))
+    with pytest.raises(ValueError, match="at least one"):
+        CarveSettings(scales=())
+
+
 def _textured_plane_view(eye: np.ndarray, size: int, depth_z: float, half: float
                          ) -> tuple[Camera, np.ndarray, np.ndarray]:
     """A camera at ``eye`` looking down -z at the square |x|, |y| < half of the plane z = depth_z,
@@ -328,17 +392,17 @@ def test_stereo_depth_only_from_windows_wholly_on_the_object() -> None:
     """The plane sweep finds the depth of a textured square, but gives none where its NCC window
     reaches past the square's outline: there the window also compares background, and on a part
     seen edge-on such a depth lies behind the part and would carve it."""
-    from fracture_gs.recon.carving import CarveSettings, sweep_depth
-    settings = CarveSettings(window=7, ncc_threshold=0.8)
+    from fracture_gs.recon.carving import sweep_depth
+    window = 7
     views = [_textured_plane_view(np.array([dx, dy, 3.0]), 64, 0.0, 0.5)
              for dx, dy in ((0.0, 0.0), (0.4, 0.0), (-0.4, 0.0), (0.0, 0.4))]
     cameras = [view[0] for view in views]
     gray = np.stack([view[1] for view in views])
     mask = views[0][2]
     planes = np.linspace(2.5, 3.5, 41)
-    depth = sweep_depth(0, [1, 2, 3], gray, cameras, mask, planes, settings)
+    depth = sweep_depth(0, [1, 2, 3], gray, cameras, mask, planes, window, 0.8)
     distance_to_outline = ndimage.distance_transform_cdt(mask, metric="chessboard")
-    deep = distance_to_outline > settings.window // 2
+    deep = distance_to_outline > window // 2
     rim = mask & ~deep
     assert np.isfinite(depth[deep]).mean() > 0.75
     assert np.nanpercentile(np.abs(depth[deep] - 3.0), 95) <= 2 * (planes[1] - planes[0])

@@ -44,7 +44,7 @@ LEARNING_RATES_3DGS = {name: getattr(FitSettings, name) for name in ("feature_lr
 LEARNING_RATES_DEFAULT = {"feature_lr": 1e-2, "opacity_lr": 5e-2, "scaling_lr": 1e-2}
 PRESETS: dict[str, dict[str, Any]] = {
     # Sized so that one 400x400, 100-view object finishes in <= 15 minutes on a 2-core CPU.
-    "default": {"resolution": 1, "iterations": ITERATIONS_DEFAULT, "sdf_res": 128, "sdf_iters": 300,
+    "default": {"resolution": 1, "iterations": ITERATIONS_DEFAULT, "sdf_res": 160, "sdf_iters": 300,
                 "n_surface": 40_000, "nv": 8, "particle_res": 48, "n_interior": None,
                 **LEARNING_RATES_DEFAULT},
     # The paper's sizes (App. A.2): 200k surface and 100k interior particles, full images,
@@ -67,7 +67,7 @@ class TrainConfig:
     resolution: int = 1
     white_background: bool = False
     iterations: int = ITERATIONS_DEFAULT
-    sdf_res: int = 128
+    sdf_res: int = 160
     sdf_iters: int = 300
     n_surface: int = 40_000
     nv: int = 8
