@@ -17,9 +17,9 @@ checked against the nearby reference views' depth maps (multi-view depth fusion)
 * *confirmed*: it lands within 1.5 voxels of the depth that at least ``consistent_views`` of
   them measured;
 * *single*: one of them confirms it and none sees through it (measures a surface more than 1.5
-  voxels behind it). Surfaces seen only at grazing angles by a few views — the floor of the
-  recess under a bowl's foot ring — are rarely confirmed twice, but their neighbours see
-  nothing behind them either.
+  voxels behind it). On weakly textured surfaces (the bowl's glaze) most true depths are confirmed
+  by one neighbour only; requiring several such depths to agree before they carve keeps the
+  occasional false match from cutting into a part.
 
 A grid node inside the hull is carved when at least ``votes`` confirmed depths, or at least
 ``single_view_votes`` single ones, see it more than ``margin_voxels`` in front of their measured
