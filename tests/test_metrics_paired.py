@@ -81,6 +81,8 @@ def test_infinite_psnr_is_left_out_and_unpaired_runs_are_refused():
     assert "psnr" not in paired_differences(_run(psnr), _run(psnr), resamples=10)
     with pytest.raises(ValueError, match="not paired"):
         paired_differences(_run(np.zeros((3, 2))), _run(np.zeros((4, 2))))
+    with pytest.raises(ValueError, match="at least 2 views"):
+        paired_differences(_run(np.zeros((1, 2))), _run(np.zeros((1, 2))))
     with pytest.raises(ValueError, match="confidence"):
         paired_differences(_run(np.zeros((3, 2))), _run(np.zeros((3, 2))), confidence=1.0)
 

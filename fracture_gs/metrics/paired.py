@@ -109,11 +109,14 @@ def paired_differences(first: SelfReferencedMetrics, second: SelfReferencedMetri
     """The first run's advantage over the second in PSNR, LPIPS and FID (those both runs have),
     each with a bootstrap interval over the views (module docstring).
 
-    Both runs must have the same (views, window frames). FID intervals need at least 2 views.
+    Both runs must have the same (views, window frames), with at least 2 views (one view has no
+    spread to draw from).
     """
     if first.psnr.shape != second.psnr.shape:
         raise ValueError(f"runs are not paired: {first.psnr.shape} and {second.psnr.shape} "
                          "(views, window frames)")
+    if first.psnr.shape[0] < 2:
+        raise ValueError(f"a paired comparison needs at least 2 views, got {first.psnr.shape[0]}")
     if not 0.0 < confidence < 1.0:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
     draws = view_resamples(first.psnr.shape[0], resamples, seed)
@@ -121,8 +124,7 @@ def paired_differences(first: SelfReferencedMetrics, second: SelfReferencedMetri
     found = [_per_view_difference("psnr", first.psnr, second.psnr, draws, confidence)]
     if first.lpips is not None and second.lpips is not None:
         found.append(_per_view_difference("lpips", first.lpips, second.lpips, draws, confidence))
-    if first.psnr.shape[0] >= 2:
-        found.append(_fid_difference(first, second, draws, confidence))
+    found.append(_fid_difference(first, second, draws, confidence))
     for difference in found:
         if difference is not None:
             out[difference.metric] = difference

@@ -91,9 +91,9 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
 
 def paired_comparisons(results: Sequence[RunResult]) -> list[dict]:
     """The first run against each other run with metrics on the same (views, window frames):
-    :func:`fracture_gs.metrics.paired.paired_differences` as JSON."""
+    :func:`fracture_gs.metrics.paired.paired_differences` as JSON (none with fewer than 2 views)."""
     first = results[0].metrics if results else None
-    if first is None:
+    if first is None or first.psnr.shape[0] < 2:
         return []
     comparisons = []
     for other in results[1:]:
