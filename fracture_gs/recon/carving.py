@@ -185,18 +185,19 @@ def consistent_depths(maps: list[DepthMap], directions: np.ndarray, voxel: float
     return confirmed, single
 
 
-def sweep_maps(dataset: Dataset, grid: VoxelGrid, settings: CarveSettings, downscale: int,
-               window: int) -> list[DepthMap]:
-    """Plane-sweep depth maps of the reference views at one image scale (downscaled cameras)."""
+def sweep_maps(dataset: Dataset, grid: VoxelGrid, settings: CarveSettings, luminance: np.ndarray,
+               masks: np.ndarray, directions: np.ndarray, downscale: int, window: int
+               ) -> list[DepthMap]:
+    """Plane-sweep depth maps of the reference views at one image scale (downscaled cameras).
+    ``luminance`` and ``masks`` (views, H, W) are the full-size grey images and masks,
+    ``directions`` (views, 3) the unit vectors from the grid's centre to each camera."""
     scale = max(1, downscale)
     width, height = max(1, dataset.width // scale), max(1, dataset.height // scale)
-    images = dataset.images.cpu().numpy()
-    gray = np.stack([cv2.resize(image @ LUMINANCE, (width, height), interpolation=cv2.INTER_AREA)
-                     for image in images]).astype(np.float32)
+    gray = np.stack([cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+                     for image in luminance]).astype(np.float32)
     masks = np.stack([cv2.resize(mask, (width, height), interpolation=cv2.INTER_AREA)
-                      for mask in dataset.masks.cpu().numpy()]) > 0.5
+                      for mask in masks]) > 0.5
     cameras = [resized_camera(c, width, height) for c in dataset.cameras]
-    directions = _directions(dataset, 0.5 * (grid.lower + grid.upper))
     corners = np.array([[x, y, z] for x in (grid.lower[0], grid.upper[0])
                         for y in (grid.lower[1], grid.upper[1])
                         for z in (grid.lower[2], grid.upper[2])])
@@ -219,9 +220,11 @@ def sweep_maps(dataset: Dataset, grid: VoxelGrid, settings: CarveSettings, downs
 def stereo_depth_maps(dataset: Dataset, grid: VoxelGrid, settings: CarveSettings) -> DepthEvidence:
     """The depth maps of every scale, each scale's checked against its own nearby maps."""
     directions = _directions(dataset, 0.5 * (grid.lower + grid.upper))
+    luminance = dataset.images.cpu().numpy() @ LUMINANCE
+    masks = dataset.masks.cpu().numpy()
     evidence = DepthEvidence([], [])
     for downscale, window in settings.scales:
-        maps = sweep_maps(dataset, grid, settings, downscale, window)
+        maps = sweep_maps(dataset, grid, settings, luminance, masks, directions, downscale, window)
         confirmed, single = consistent_depths(maps, directions, grid.voxel, settings)
         evidence.confirmed.extend(confirmed)
         evidence.single.extend(single)
