@@ -55,7 +55,7 @@ class Profile:
 
 
 PROFILES = {
-    # 13.5 min on the idle 2-core CPU, 11 of them simulating (README, Demo); --quick 1.5 min.
+    # 14.7 min on the idle 2-core CPU, 13 of them simulating (README, Demo); --quick 1.5 min.
     "default": Profile("default", 200, 60, 8, 16, 128,
                        ("--sdf-res", "64", "--sdf-iters", "200", "--iterations", "800",
                         "--n-surface", "12000", "--nv", "8", "--particle-res", "24"),
