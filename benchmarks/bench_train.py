@@ -111,6 +111,8 @@ def main() -> int:
                         help="SDF grid cells along the longest side (default: train.py's)")
     parser.add_argument("--threads", type=int, default=None)
     args = parser.parse_args()
+    if args.sdf_res < 8:
+        parser.error(f"--sdf-res must be >= 8 (as for train.py), got {args.sdf_res}")
     if args.threads:
         torch.set_num_threads(args.threads)
     if args.source:

@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import torch
@@ -68,14 +67,20 @@ def main() -> None:
     parser.add_argument("--weights-dir", type=Path, default=None)
     args = parser.parse_args()
     try:
-        settings = FPGOSettings(**json.loads(args.fpgo))
+        overrides = json.loads(args.fpgo)
+    except json.JSONDecodeError as error:
+        parser.exit(2, f"error: --fpgo {args.fpgo!r} is not JSON ({error})\n")
+    if not isinstance(overrides, dict):
+        parser.exit(2, f"error: --fpgo must be a JSON object of FPGOSettings fields, got {args.fpgo!r}\n")
+    try:
+        settings = FPGOSettings(**overrides)
         sim = open_simulation(args.sim)
         window = fracture_window_from_simulation(args.sim, args.window)
         views = evaluation_views(sim, f"orbit:{args.views}", (args.size, args.size))
     except (EvaluationError, ValueError, TypeError, FileNotFoundError) as error:
-        sys.exit(f"error: {error}")
+        parser.exit(2, f"error: {error}\n")
     if not window.usable:
-        sys.exit(f"error: {args.sim}: no usable fracture window ({window.note})")
+        parser.exit(2, f"error: {args.sim}: no usable fracture window ({window.note})\n")
     device = torch.device("cpu")
     scene = SceneGaussians.from_simulation(sim, device, settings)
     background = torch.ones(3, device=device)
