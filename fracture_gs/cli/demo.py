@@ -28,6 +28,7 @@ import numpy as np
 import torch
 import yaml
 
+from fracture_gs.cli.output_folder import prepare_output_folder
 from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.mpm.output import write_text_atomic
 
@@ -296,7 +297,7 @@ def run_demo(demo: Demo) -> dict:
     """Run (or skip) every stage, then print the comparison and where the results are."""
     from fracture_gs.report.sim_report import print_comparison
 
-    demo.out.mkdir(parents=True, exist_ok=True)
+    prepare_output_folder(demo.out, "--out")
     if demo.log_path.is_file() and not demo.force:
         demo.log = json.loads(demo.log_path.read_text())
     if demo.log.get("profile", demo.profile.name) != demo.profile.name:

@@ -21,8 +21,11 @@ from pathlib import Path
 
 import torch
 
+from fracture_gs.cli.output_folder import prepare_output_folder
 from fracture_gs.experiments.sim_eval import DEFAULT_RESOLUTION, EvalOptions, EvaluationError, RunSpec
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
+from fracture_gs.render.model_folder import latest_point_cloud
+from fracture_gs.sim.folder import Simulation
 
 EXPERIMENTS = ("ablation", "hardening", "nv-sweep", "momentum", "energy")
 
@@ -139,7 +142,10 @@ def run_sim(args: argparse.Namespace) -> int:
             specs.append(RunSpec("mls, no FPGO (PhysGaussian / GIC)", Path(args.mls), False))
     else:
         specs = [RunSpec("FPGO" if args.fpgo else "no FPGO", sim, args.fpgo, renders)]
-    out_dir = Path(args.out) if args.out else sim / "evaluation"
+    for spec in specs:  # the simulations exist before an output folder is made beside them
+        Simulation.open(spec.sim)
+    out_dir = prepare_output_folder(Path(args.out) if args.out else sim / "evaluation", "--out",
+                                    keep=False)  # checked now, made when the results are written
     networks = _networks(args, device)
     metrics = evaluate_and_report(specs, options, networks, out_dir,
                                   f"Evaluation of {sim.name}", with_paper=args.compare,
@@ -159,9 +165,11 @@ def run_model(args: argparse.Namespace) -> int:
 
     device = device_from_option(args.device)
     model = Path(args.model_path)
+    latest_point_cloud(model)  # a trained model before an output folder is made inside it
+    out_dir = prepare_output_folder(Path(args.out) if args.out else model / "evaluation", "--out",
+                                    keep=False)  # checked now, made when the results are written
     networks = _networks(args, device, fid=False)
     result = evaluate_model(model, networks, args.split, device)
-    out_dir = Path(args.out) if args.out else model / "evaluation"
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = result.to_json()
     write_text_atomic(out_dir / "metrics.json", json.dumps(
@@ -200,9 +208,10 @@ def run_experiments(args: argparse.Namespace) -> int:
         extra["nv_values"] = tuple(sorted(set(args.nv_values)))
     if args.alpha0_values is not None:
         extra["alpha0_values"] = tuple(args.alpha0_values)
+    out_root = prepare_output_folder(Path(args.out) if args.out else Path("output") / "experiments",
+                                     "--out", keep=False)
     settings = ExperimentSettings(
-        configs=Path(args.configs), out_root=Path(args.out) if args.out else
-        Path("output") / "experiments", workers=args.workers, ray_address=args.ray,
+        configs=Path(args.configs), out_root=out_root, workers=args.workers, ray_address=args.ray,
         frames=args.frames, grid=args.grid, force=args.force, device=device,
         eval_options=_options(args, device), weights_dir=args.weights_dir,
         lpips=not args.no_lpips, fid=not args.no_fid, progress=not args.quiet, **extra)

@@ -1,5 +1,6 @@
-"""Exit statuses shared by ``evaluate.py`` and ``demo.py``: bad input is one ``error: ...`` line
-and status 2, a failed simulation 1, Ctrl-C 130."""
+"""Exit statuses shared by ``evaluate.py`` and ``demo.py``: bad input (an output folder that
+cannot be made included) is one ``error: ...`` line and status 2, a failed simulation or a
+failed write (a full disk) 1, Ctrl-C 130."""
 from __future__ import annotations
 
 import sys
@@ -8,6 +9,7 @@ from collections.abc import Callable
 
 def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     """Call ``function`` and turn the project's input errors into exit statuses."""
+    from fracture_gs.cli.output_folder import OutputFolderError, os_error_line
     from fracture_gs.experiments.runner import RunFailed
     from fracture_gs.experiments.sim_eval import EvaluationError
     from fracture_gs.render.frame_gaussians import ModelError
@@ -16,11 +18,14 @@ def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
 
     try:
         status = function()
-    except (EvaluationError, ModelError, SimulationError, ViewSpecError) as exc:
+    except (EvaluationError, ModelError, SimulationError, ViewSpecError, OutputFolderError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # writing a result failed (disk full, folder removed, ...)
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(interrupted, file=sys.stderr)

@@ -7,7 +7,8 @@
 trained model without simulation (handed to ``fracture_gs.cli.render_model``).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line naming the folder, file
-or option), 130 when interrupted (images written so far stay, videos are not kept).
+or option; an output folder that cannot be made included), 1 when writing fails later (a full
+disk), 130 when interrupted (images written so far stay, videos are not kept).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from typing import TextIO
 import numpy as np
 import torch
 
+from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.mpm.output import write_text_atomic
 from fracture_gs.render.frame_gaussians import FrameGaussians, ModelError, SceneGaussians
@@ -231,11 +233,13 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
     if preview not in names:
         raise ViewSpecError(f"--preview-view {preview}: not one of the views "
                             f"({', '.join(names[:8])}{', ...' if len(names) > 8 else ''})")
+    out_dir = prepare_output_folder(  # checked now, made once the model files have loaded
+        options.out or sim.root / ("renders" if options.fpgo else "renders_nofpgo"), "--out",
+        keep=False)
     scene = SceneGaussians.from_simulation(sim, options.device, options.settings)
     device = options.device
     views = [View(view.name, view.camera.to(device)) for view in views]
     background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
-    out_dir = options.out or sim.root / ("renders" if options.fpgo else "renders_nofpgo")
     for name in names:
         (out_dir / name).mkdir(parents=True, exist_ok=True)
     if options.export_ply:
@@ -344,9 +348,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         render_simulation(options_from_args(args))
-    except (SimulationError, ModelError, ViewSpecError, InvalidInput) as exc:
+    except (SimulationError, ModelError, ViewSpecError, InvalidInput, OutputFolderError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # writing an image or video failed (disk full, folder removed, ...)
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted; the images written so far are kept, the videos are not",
               file=sys.stderr)

@@ -121,6 +121,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (RenderInputError, DatasetError, PlyFormatError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # writing into the model folder failed (read-only, disk full, ...)
+        print(f"error: {os_error_line(error)}", file=sys.stderr)
+        return 1
     return 0
 
 

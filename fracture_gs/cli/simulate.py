@@ -9,7 +9,6 @@ memory, an ``--out`` that is a file, a damaged run for ``--resume``), 1 when the
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -20,6 +19,7 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
+from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
 from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
 from fracture_gs.mpm.memory import check_scene_memory
 from fracture_gs.mpm.output import (CHECKPOINT_FILE, OutputError, SimulationOutput,
@@ -130,18 +130,13 @@ def first_difference(a: Any, b: Any, path: str = "") -> str | None:
 
 
 def check_output_folder(out_dir: Path) -> None:
-    """InvalidInput unless ``out_dir`` is a folder or can be created as one (checked before
-    anything is built, so a bad ``--out`` costs nothing)."""
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InvalidInput("--out", f"'{out_dir}' is a file, not a folder")
-    existing = out_dir
-    while not existing.exists() and existing.parent != existing:
-        existing = existing.parent
-    if existing.exists() and not existing.is_dir():
-        raise InvalidInput("--out", f"'{out_dir}' cannot be created: '{existing}' is a file")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise InvalidInput("--out", f"'{out_dir}' cannot be written: no write permission on "
-                           f"'{existing}'")
+    """InvalidInput unless ``out_dir`` is a folder that files can be written into, or can be
+    created as one (checked before anything is built, so a bad ``--out`` costs nothing; the
+    check leaves no folder behind)."""
+    try:
+        prepare_output_folder(out_dir, "--out", keep=False)
+    except OutputFolderError as exc:
+        raise InvalidInput(exc.option, exc.problem) from None
 
 
 def _resume_error(exc: OutputError) -> SceneError:
@@ -320,12 +315,6 @@ def _interrupted_message(out_dir: Path | None) -> str:
     return "interrupted before the first frame was written"
 
 
-def _os_error_message(exc: OSError) -> str:
-    """One line for an OSError: the file it concerns and the reason."""
-    where = f"{exc.filename}: " if exc.filename else ""
-    return f"{where}{exc.strerror or exc}"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = parse_args(argv)
@@ -352,7 +341,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return 1
     except OSError as exc:  # writing the output failed (disk full, folder removed, ...)
-        print(f"error: {_os_error_message(exc)}", file=sys.stderr)
+        print(f"error: {os_error_line(exc)}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(_interrupted_message(out_dir), file=sys.stderr)

@@ -11,7 +11,9 @@ import os
 import sys
 from typing import Sequence
 
+from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
 from fracture_gs.data import DatasetError
+from fracture_gs.data.loading import detect_format
 from fracture_gs.data.parts import PartSpecError
 from fracture_gs.gaussians import PlyFormatError
 from fracture_gs.recon.errors import ReconstructionError
@@ -120,10 +122,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
-        train(config_from_args(args))
-    except (ReconstructionError, DatasetError, PartSpecError, PlyFormatError) as error:
+        config = config_from_args(args)
+        detect_format(config.source_path)  # a dataset before an output folder is made for it
+        prepare_output_folder(config.model_path, "-m/--model_path", keep=False)
+        train(config)
+    except (ReconstructionError, DatasetError, PartSpecError, PlyFormatError,
+            OutputFolderError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # writing the model failed (disk full, folder removed, ...)
+        print(f"error: {os_error_line(error)}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted; continue with --start_checkpoint <model>/chkpnt<N>.pth if the "
               "Gaussian stage had written one", file=sys.stderr)

@@ -327,8 +327,10 @@ def build_geometry(config: TrainConfig, inputs: Inputs, timer: StageTimer,
     return hull.grid, refined.sdf, hull.sdf
 
 
-def train(config: TrainConfig, out: TextIO = sys.stdout) -> dict[str, Any]:
-    """Run train.py's pipeline; returns the summary also written to ``timings.json``."""
+def train(config: TrainConfig, out: TextIO | None = None) -> dict[str, Any]:
+    """Run train.py's pipeline; returns the summary also written to ``timings.json``. The
+    summary line goes to ``out`` (the current ``sys.stdout`` when None)."""
+    out = out if out is not None else sys.stdout
     check_config(config)
     inputs = read_inputs(config)
     device = torch.device(config.device)

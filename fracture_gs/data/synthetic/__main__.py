@@ -6,6 +6,7 @@ import json
 import os
 import sys
 
+from fracture_gs.cli.output_folder import os_error_line
 from fracture_gs.data.synthetic.generator import (GeneratorSettings, check_output_folder,
                                                   generate_dataset)
 from fracture_gs.data.synthetic.objects import OBJECT_NAMES
@@ -55,7 +56,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError, RuntimeError) as error:
+    except OSError as error:  # e.g. the staging folder <out>.partial cannot be made
+        print(f"error: {os_error_line(error)}", file=sys.stderr)
+        return 2
+    except (ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     return 0
