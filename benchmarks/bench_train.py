@@ -30,7 +30,6 @@ import torch
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from fracture_gs.data import Dataset, load_dataset  # noqa: E402
-from fracture_gs.gaussians import GaussianModel  # noqa: E402
 from fracture_gs.recon.gaussian_fit import FitSettings, fit_gaussians, new_fit_state  # noqa: E402
 from fracture_gs.recon.hull import visual_hull  # noqa: E402
 from fracture_gs.recon.pipeline import TrainConfig  # noqa: E402

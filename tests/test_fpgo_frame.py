@@ -13,7 +13,6 @@ from fracture_gs.gaussians import read_ply
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render import Camera, rasterize
 from fracture_gs.render.frame_gaussians import ModelError, SceneGaussians, read_frame_ply
-from fracture_gs.render.views import transform_camera
 from fracture_gs.sim import SimFrame, Simulation
 from render_scenes import (SPACING, block_scene, identity_frames, lattice_block, write_model,
                            write_sim)

@@ -326,7 +326,7 @@ def test_floor_wall_slip_and_separate_let_a_block_slide_sticky_stops_it():
             assert float(np.abs(v[2:, 0]).min()) < 0.05, "the sticky floor stops the block"
         else:
             assert float(v[:, 0].min()) > 0.99, f"the {condition} floor must not brake the block"
-    print(f"[walls] distance slid along the floor in 0.3 s: " + ", ".join(f"{k}={d:.3f}" for k, d in travelled.items()))
+    print("[walls] distance slid along the floor in 0.3 s: " + ", ".join(f"{k}={d:.3f}" for k, d in travelled.items()))
     assert travelled["slip"] == pytest.approx(0.3, rel=0.01)
     assert travelled["separate"] == pytest.approx(0.3, rel=0.01)
     assert abs(travelled["sticky"]) < 0.1 * travelled["slip"]

@@ -102,3 +102,19 @@ def test_evaluate_refuses_the_folder_before_loading_networks(a_file: Path, tmp_p
     _one_error_line(capsys, "--out")
     assert evaluate.main(["--experiment", "momentum", "--out", str(a_file / "exp")]) == 2
     _one_error_line(capsys, "--out")
+
+
+def test_render_model_reports_a_failed_write_in_one_line(tmp_path: Path, capsys) -> None:
+    from fracture_gs.cli import render_model
+    from fracture_gs.cli.train import main as train_main
+
+    model = tmp_path / "model"
+    assert train_main(["-s", str(ROOT / "tests" / "data" / "synthetic_fixture"), "-m", str(model),
+                       "--sdf-res", "24", "--sdf-iters", "8", "--iterations", "4",
+                       "--n-surface", "200", "--nv", "2", "--particle-res", "8", "--sdf-rays",
+                       "256", "--quiet"]) == 0
+    capsys.readouterr()
+    (model / "test").write_text("in the way")  # render.py -m writes <model>/test/ours_<N>/
+    assert render_model.main(["-m", str(model), "--skip_train", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: ") and str(model / "test") in err[0], err

@@ -1,7 +1,6 @@
 """The C++ Gaussian rasterizer against its dense PyTorch twin (SPEC §6.1, issue 3)."""
 from __future__ import annotations
 
-import math
 
 import pytest
 import torch

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from fracture_gs.cli.output_folder import os_error_line
 from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.gaussians import PlyFormatError, read_ply
 from fracture_gs.metrics.image import psnr, ssim

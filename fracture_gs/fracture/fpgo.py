@@ -186,7 +186,6 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     if stats.fractured == 0:
         stats.milliseconds = (time.perf_counter() - started) * 1e3
         return columns, stats
-    device = x.device
     active = (torch.bincount(particles.object_id[fractured],
                              minlength=len(particles.rows_by_object)) > 0).cpu()
 

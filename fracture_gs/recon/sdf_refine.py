@@ -42,7 +42,7 @@ import torch
 import torch.nn.functional as F
 
 from fracture_gs.data.dataset import Dataset
-from fracture_gs.recon.grid import (VoxelGrid, cell_corners, combine, combine_with_gradient,
+from fracture_gs.recon.grid import (VoxelGrid, cell_corners, combine_with_gradient,
                                     gather, resample)
 from fracture_gs.recon.rays import RigTensors, box_intersection
 
@@ -348,7 +348,6 @@ def _train_level(model: GridSDF, dataset: Dataset, views: NeighbourViews, rig: R
         {"params": [model.sdf], "lr": settings.sdf_lr * grid.voxel, "eps": settings.sdf_eps}])
     images = dataset.images.to(device)
     masks = dataset.masks.to(device)
-    background = torch.tensor(dataset.background, dtype=torch.float32, device=device)
     lower, upper = grid.lower, grid.upper
     diagonal = float(np.linalg.norm(upper - lower))
     presamples = int(min(256, max(32, math.ceil(diagonal / (PRESAMPLE_SPACING * grid.voxel)))))
