@@ -77,10 +77,9 @@ def test_train_refuses_the_folder_and_leaves_nothing_on_bad_input(a_file: Path, 
     (dataset / "transforms_train.json").write_text(json.dumps({"frames": []}))
     assert train.main(["-s", str(dataset), "-m", str(a_file / "model"), "--quiet"]) == 2
     _one_error_line(capsys, "-m/--model_path")
-    # A bad dataset after a good folder: the folder is not left behind empty.
-    assert train.main(["-s", str(tmp_path / "no_dataset"), "-m", str(tmp_path / "new" / "model"),
-                       "--quiet"]) == 2
-    _one_error_line(capsys, "no_dataset")
+    # A dataset that fails to load after the folder check passed: the check's folders are gone.
+    assert train.main(["-s", str(dataset), "-m", str(tmp_path / "new" / "model"), "--quiet"]) == 2
+    _one_error_line(capsys, "transforms_train.json")
     assert not (tmp_path / "new").exists()
 
 
