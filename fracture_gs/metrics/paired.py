@@ -90,9 +90,8 @@ def _fid_of_views(reference: torch.Tensor, window: torch.Tensor, draws: np.ndarr
 def _fid_difference(first: SelfReferencedMetrics, second: SelfReferencedMetrics,
                     draws: np.ndarray, confidence: float) -> PairedDifference | None:
     """FID(second) − FID(first) and its interval from FIDs recomputed on resampled views."""
-    if first.fid is None or second.fid is None or first.window_features is None \
-            or second.window_features is None or first.reference_features is None \
-            or second.reference_features is None:
+    if any(m.fid is None or m.reference_features is None or m.window_features is None
+           for m in (first, second)):
         return None
     features = [(torch.from_numpy(m.reference_features), torch.from_numpy(m.window_features))
                 for m in (first, second)]
