@@ -1,7 +1,7 @@
 """Which part of FPGO moves the self-referenced metrics of a simulation (issue 13, the ablation).
 
 Renders the reference frame and the window frames of ``--sim`` (SPEC §7) from ``--views`` orbit
-cameras with the frame's Gaussians in five variants, scores each with the protocol of
+cameras with the frame's Gaussians in seven variants, scores each with the protocol of
 ``evaluate.py`` and compares it with the run without FPGO (paired over the views,
 :mod:`fracture_gs.metrics.paired`):
 
@@ -10,7 +10,10 @@ cameras with the frame's Gaussians in five variants, scores each with the protoc
 * ``fpgo_without_interior``: FPGO without the interpolated Gaussians of fractured interior
   particles that no lens replaced (the lenses alone);
 * ``interior_only``: the baseline plus those interior Gaussians (no lens, every g_i kept);
-* ``fpgo_no_exclusive``: FPGO with every lens blending (no occlusion-aware sampling).
+* ``fpgo_no_exclusive``: FPGO with every lens blending (no occlusion-aware sampling);
+* ``fpgo_keep_replaced``: FPGO's lenses and interior Gaussians added to the baseline, every g_i
+  kept (the lenses add coverage instead of replacing g_i);
+* ``lenses_keep_replaced``: the lenses alone added to the baseline, every g_i kept.
 
 ``--fpgo JSON`` overrides :class:`FPGOSettings` fields, e.g. ``'{"k_sigma": 3}'``. Images are
 rounded to 8 bits like the PNGs evaluate.py reads. Prints one JSON object.
@@ -34,7 +37,8 @@ from fracture_gs.metrics.paired import paired_differences
 from fracture_gs.metrics.protocol import MetricNetworks, self_referenced_metrics
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 
-VARIANTS = ("fpgo", "no_fpgo", "fpgo_without_interior", "interior_only", "fpgo_no_exclusive")
+VARIANTS = ("fpgo", "no_fpgo", "fpgo_without_interior", "interior_only", "fpgo_no_exclusive", "fpgo_keep_replaced",
+            "lenses_keep_replaced")
 
 
 def joined(first: FrameGaussians, second: FrameGaussians) -> FrameGaussians:
@@ -48,13 +52,16 @@ def joined(first: FrameGaussians, second: FrameGaussians) -> FrameGaussians:
 
 
 def frame_variants(scene: SceneGaussians, frame) -> dict[str, FrameGaussians]:
-    """The five variants of one frame's Gaussians (module docstring)."""
+    """The variants of one frame's Gaussians (VARIANTS; module docstring)."""
     with_fpgo, without = scene.frame(frame, fpgo=True), scene.frame(frame, fpgo=False)
     interior = with_fpgo.is_fpgo & (with_fpgo.exclusive < 0)   # lenses carry an exclusive group
+    lenses = with_fpgo.is_fpgo & ~interior
     return {"fpgo": with_fpgo, "no_fpgo": without,
             "fpgo_without_interior": with_fpgo.select(~interior),
             "interior_only": joined(without, with_fpgo.select(interior)),
-            "fpgo_no_exclusive": with_fpgo.without_exclusive()}
+            "fpgo_no_exclusive": with_fpgo.without_exclusive(),
+            "fpgo_keep_replaced": joined(without, with_fpgo.select(with_fpgo.is_fpgo)),
+            "lenses_keep_replaced": joined(without, with_fpgo.select(lenses))}
 
 
 def main() -> None:
