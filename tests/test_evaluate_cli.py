@@ -116,6 +116,24 @@ def test_bad_input_is_one_line_and_exit_2(sim: Path, argv: list[str], needle: st
     assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0]
 
 
+def test_report_folder_is_made_only_after_every_run_is_evaluated(sim: Path, tmp_path: Path) -> None:
+    """A library caller whose second run cannot be evaluated gets the error and no empty folder."""
+    from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+    from fracture_gs.metrics.protocol import MetricNetworks
+    from fracture_gs.report.sim_report import evaluate_and_report
+
+    cpu = torch.device("cpu")
+    networks = MetricNetworks.load(cpu, lpips=False, fid=False)
+    options = EvalOptions(views="orbit:2", resolution=(32, 32), device=cpu)
+    out = tmp_path / "report"
+    with pytest.raises(EvaluationError, match="no such simulation folder"):
+        evaluate_and_report([RunSpec("ours", sim), RunSpec("missing", tmp_path / "nope")], options, networks,
+                            out, "t")
+    assert not out.exists()
+    evaluate_and_report([RunSpec("ours", sim)], options, networks, out, "t")
+    assert (out / "metrics.json").is_file() and (out / "report.md").is_file()
+
+
 def test_compare_gives_the_ablation_rows(sim: Path, tmp_path: Path) -> None:
     out = tmp_path / "eval"
     assert evaluate_main(["--sim", str(sim), "--compare", "--mls", str(sim), "--out", str(out),

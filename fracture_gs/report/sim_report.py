@@ -28,10 +28,12 @@ def _slug(label: str) -> str:
 def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks: MetricNetworks,
                         out_dir: Path, title: str, with_paper: bool = False,
                         progress: bool = False) -> dict:
-    """Evaluate every run, write ``out_dir``'s files and return the metrics.json content."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    """Evaluate every run, write ``out_dir``'s files and return the metrics.json content.
+    ``out_dir`` is made only once every run has been evaluated, so a run that cannot be
+    evaluated leaves no empty folder behind."""
     started = time.perf_counter()
     results: list[RunResult] = [evaluate_run(spec, options, networks, progress) for spec in specs]
+    out_dir.mkdir(parents=True, exist_ok=True)
     runs = [result.to_json() for result in results]
 
     sections: list[tuple[str, str]] = []
