@@ -17,6 +17,9 @@ from fracture_gs.cli.evaluate import main as evaluate_main
 from fracture_gs.cli.render import RenderOptions, render_simulation
 from fracture_gs.cli.simulate import run_simulation
 from fracture_gs.config.scene import load_scene
+from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.metrics.protocol import MetricNetworks
+from fracture_gs.report.sim_report import evaluate_and_report
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_SCENE = ROOT / "tests" / "data" / "tiny_collision.yaml"
@@ -118,10 +121,6 @@ def test_bad_input_is_one_line_and_exit_2(sim: Path, argv: list[str], needle: st
 
 def test_report_folder_is_made_only_after_every_run_is_evaluated(sim: Path, tmp_path: Path) -> None:
     """A library caller whose second run cannot be evaluated gets the error and no empty folder."""
-    from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
-    from fracture_gs.metrics.protocol import MetricNetworks
-    from fracture_gs.report.sim_report import evaluate_and_report
-
     cpu = torch.device("cpu")
     networks = MetricNetworks.load(cpu, lpips=False, fid=False)
     options = EvalOptions(views="orbit:2", resolution=(32, 32), device=cpu)

@@ -29,6 +29,7 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
                         out_dir: Path, title: str, with_paper: bool = False,
                         progress: bool = False) -> dict:
     """Evaluate every run, write ``out_dir``'s files and return the metrics.json content.
+
     ``out_dir`` is made only once every run has been evaluated, so a run that cannot be
     evaluated leaves no empty folder behind."""
     started = time.perf_counter()
