@@ -298,3 +298,39 @@ def test_data_cli_files_of_the_wrong_kind(tmp_path, kind, capsys):
     code, _, err = run_data_cli([source], capsys)
     assert code == 2 and len(err.splitlines()) == 1, err
     assert err.startswith(f"error: {target}: {expected}"), err
+
+
+FIXTURE = os.path.join(os.path.dirname(__file__), "data", "synthetic_fixture")
+
+
+def test_data_cli_mesh_check_compares_masks_with_the_mesh(capsys):
+    code, out, err = run_data_cli([FIXTURE, "--mesh-check"], capsys)
+    assert code == 0, err
+    line = next(line for line in out.splitlines() if line.startswith("mesh check"))
+    low = float(line.split("min ")[1].split(",")[0])
+    assert 0.95 < low <= 1.0 and "over 5 views" in line  # the fixture's masks are renders of gt_mesh.ply
+
+
+def test_data_cli_mesh_check_needs_masks_and_the_mesh(tmp_path, capsys):
+    without_masks, without_mesh = tmp_path / "colmap", tmp_path / "blender"
+    write_colmap(str(without_masks), rig(2))  # images/ without masks/
+    code, out, err = run_data_cli([without_masks, "--mesh-check"], capsys)
+    assert code == 2 and out == ""
+    assert err.strip().splitlines() == [
+        f"error: {without_masks}: --mesh-check needs masks (alpha channels or mask/)"]
+    write_blender(str(without_mesh), rig(2))  # RGBA images, no gt_mesh.ply
+    code, out, err = run_data_cli([without_mesh, "--mesh-check"], capsys)
+    assert code == 2 and out == ""
+    assert err.strip().splitlines() == [f"error: {without_mesh / 'gt_mesh.ply'}: file not found"]
+
+
+def test_data_cli_mesh_check_names_a_broken_mesh(tmp_path, capsys):
+    import shutil
+
+    folder = tmp_path / "fixture"
+    shutil.copytree(FIXTURE, folder)
+    (folder / "gt_mesh.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n0 0\n")
+    code, out, err = run_data_cli([folder, "--mesh-check"], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and out == "" and len(lines) == 1
+    assert lines[0].startswith(f"error: {folder / 'gt_mesh.ply'}: cannot be read as a triangle mesh"), lines
