@@ -297,6 +297,44 @@ def test_backward_is_deterministic() -> None:
         assert torch.equal(first[name], second[name]), name
 
 
+def _bad_call(case: str) -> None:
+    """rasterize with one argument wrong (``case``), everything else valid."""
+    camera = make_camera(8, 8)
+    args = dict(means=torch.zeros(3, 3), opacities=torch.zeros(3), camera=camera,
+                covariances=torch.eye(3).repeat(3, 1, 1), colors=torch.ones(3, 3))
+    change = {
+        "camera": dict(camera="not a camera"),
+        "means shape": dict(means=torch.zeros(3, 2)),
+        "means list": dict(means=[[0.0, 0.0, 0.0]]),
+        "means dtype": dict(means=torch.zeros(3, 3, dtype=torch.int64)),
+        "opacities type": dict(opacities=[0.5, 0.5, 0.5]),
+        "opacities device": dict(opacities=torch.zeros(3, device="meta")),
+        "scales without quats": dict(scales=torch.ones(3, 3), covariances=None),
+        "both shapes": dict(scales=torch.ones(3, 3), quats=torch.ones(3, 4)),
+        "no colour": dict(colors=None),
+        "view rotations without sh": dict(view_rotations=torch.eye(3).repeat(3, 1, 1)),
+    }[case]
+    args.update(change)
+    rasterize(args.pop("means"), args.pop("opacities"), args.pop("camera"), **args)
+
+
+@pytest.mark.parametrize("case, needle", [
+    ("camera", "camera must be a fracture_gs.render.Camera, got str"),
+    ("means shape", r"means must have shape \(N, 3\), got \(3, 2\)"),
+    ("means list", r"means must have shape \(N, 3\), got list"),
+    ("means dtype", "means must be floating point"),
+    ("opacities type", "opacities must be a torch.Tensor, got list"),
+    ("opacities device", "opacities is on meta, means are on cpu"),
+    ("scales without quats", "scales and quats must be given together"),
+    ("both shapes", "exactly one of scales\\+quats or covariances"),
+    ("no colour", "exactly one of sh or colors"),
+    ("view rotations without sh", "view_rotations only apply to sh colours"),
+])
+def test_bad_input_names_the_argument(case: str, needle: str) -> None:
+    with pytest.raises(ValueError, match="rasterize: .*" + needle):
+        _bad_call(case)
+
+
 def test_bad_input_raises() -> None:
     camera = make_camera(8, 8)
     means = torch.zeros(3, 3)
