@@ -89,7 +89,7 @@ def test_frame_selection(three_frames: Simulation):
     assert sim.select_frames(":2") == [0, 1]
     assert sim.select_frames("0:3") == [0, 1, 2]
     assert sim.select_frames("2") == [2]
-    for spec, message in (("2:9", "outside the run"), ("5", "outside the run"),
+    for spec, message in (("2:9", "outside the run"), ("5", "outside the run"), ("7:", "outside the run"),
                           ("2:1", "empty range"), ("a:b", "expected a, a:b")):
         with pytest.raises(SimulationError, match=message):
             sim.select_frames(spec)

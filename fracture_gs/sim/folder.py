@@ -148,10 +148,10 @@ class Simulation:
             stop = int(match.group(3)) if match.group(3) else last + 1
         else:
             stop = start + 1
+        if start < first or start > last or stop - 1 > last:
+            raise SimulationError(f"--frames {spec}: outside the run ({run})")
         if stop <= start:
             raise SimulationError(f"--frames {spec}: empty range")
-        if start < first or stop - 1 > last:
-            raise SimulationError(f"--frames {spec}: outside the run ({run})")
         available = set(self.frames)
         missing = [f for f in range(start, stop) if f not in available]
         if missing:
