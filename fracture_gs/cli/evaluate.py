@@ -142,7 +142,7 @@ def run_sim(args: argparse.Namespace) -> int:
             specs.append(RunSpec("mls, no FPGO (PhysGaussian / GIC)", Path(args.mls), False))
     else:
         specs = [RunSpec("FPGO" if args.fpgo else "no FPGO", sim, args.fpgo, renders)]
-    for spec in specs:  # the simulations exist before an output folder is made beside them
+    for spec in specs:  # a missing simulation fails here, before the folder probe and the networks
         Simulation.open(spec.sim)
     out_dir = prepare_output_folder(Path(args.out) if args.out else sim / "evaluation", "--out",
                                     keep=False)  # checked now, made when the results are written

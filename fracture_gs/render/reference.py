@@ -22,7 +22,6 @@ C++/CUDA kernels must reproduce exactly:
 """
 from __future__ import annotations
 
-
 import torch
 
 from fracture_gs.render.camera import Camera
