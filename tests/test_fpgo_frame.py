@@ -218,6 +218,47 @@ def test_fractured_interior_particles_get_interpolated_gaussians(tmp_path: Path)
     assert checked >= 5
 
 
+def test_only_exposed_fractured_interior_particles_are_drawn(tmp_path: Path):
+    """The NACC flag marks a damaged volume; FPGO's default draws its interior particles only on
+    a fracture surface (they kept fewer than ``exposure`` of their rest neighbours), the buried
+    ones stay undrawn as without fracture; ``interior="all"`` draws every one (SPEC §6.3 step 4
+    as written)."""
+    sim, _, points, surface = make_block(tmp_path, jitter=0.15)
+    frame = crack_frame(sim, points, gap=3.0 * SPACING)
+    band = torch.from_numpy(np.abs(points[:, 0]) < 3.5 * SPACING)   # a thick damaged band
+    frame = SimFrame(frame.index, frame.x, frame.F_E, band)
+    interior = torch.from_numpy(~surface)
+    drawn = {}
+    for rule in ("exposed", "all"):
+        gaussians = SceneGaussians.from_simulation(sim, settings=FPGOSettings(interior=rule)).frame(frame)
+        owners = torch.unique(gaussians.particle[gaussians.is_fpgo])
+        drawn[rule] = owners[interior[owners]]                 # interior particles FPGO draws
+        buried = gaussians.stats.buried_particles
+        assert (buried > 0) == (rule == "exposed")
+    # the share of each particle's rest neighbours (within d_c) that the cut moved to the other
+    # side: a particle on a face of the cut loses them, one away from it keeps all of them
+    right = torch.from_numpy(points[:, 0] > 1e-6)
+    rest = sim.load_frame(0).x
+    d_c = 1.5 * TRANSFORM["scale"] * SPACING
+    near = (rest[:, None] - rest[None]).norm(dim=2) <= d_c
+    near.fill_diagonal_(False)
+    across = (near & (right[:, None] != right[None])).sum(1) / near.sum(1).clamp_min(1)
+    drawn_mask = torch.zeros_like(band)
+    drawn_mask[drawn["exposed"]] = True
+    candidates = band & interior
+    assert drawn_mask[candidates & (across >= 0.25)].all()          # on a face: drawn
+    assert not drawn_mask[candidates & (across == 0)].any()         # buried: not drawn
+    assert (candidates & (across >= 0.25)).any() and (candidates & (across == 0)).any()
+    # "all": every fractured interior particle has an FPGO Gaussian (its own or lenses)
+    assert torch.equal(torch.sort(drawn["all"]).values, torch.nonzero(band & interior).flatten())
+    stats = SceneGaussians.from_simulation(sim).frame(frame).stats
+    assert stats.buried_particles == int((band & interior).sum()) - drawn["exposed"].numel()
+    with pytest.raises(ValueError, match="interior"):
+        FPGOSettings(interior="some")
+    with pytest.raises(ValueError, match="exposure"):
+        FPGOSettings(exposure=0.0)
+
+
 def test_small_fragments_are_not_drawn_with_fpgo(block):
     sim, _, points, _ = block
     scene = SceneGaussians.from_simulation(sim, settings=FPGOSettings(min_fragment=10))

@@ -10,11 +10,14 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.fracture import reference
 from fracture_gs.fracture.ops import deform_gaussians, lens_ellipsoids
-from fracture_gs.fracture.spatial import (component_roots, connected_components, k_nearest,
-                                          knn_within, small_component_mask)
+from fracture_gs.fracture.spatial import (component_roots, connected_components,
+                                          fracture_neighbourhood, k_nearest, knn_within,
+                                          retained_neighbours, small_component_mask)
+from kernel_devices import KERNEL_DEVICES
 
 needs_cpp = pytest.mark.extension("spatial_knn_within", "spatial_component_roots",
-                                   "spatial_small_component_mask",
+                                   "spatial_small_component_mask", "spatial_retained_neighbours",
+                                   "spatial_fracture_neighbourhood",
                                    "fracture_deform_gaussians", "fracture_lens_ellipsoids")
 BACKENDS = ["reference", pytest.param("cpp", marks=needs_cpp)]
 
@@ -63,6 +66,22 @@ def test_knn_within_kernel_equals_twin_with_groups(k):
     assert torch.allclose(distance_c, distance_r, atol=1e-7)
     hit = index_c >= 0
     assert (group[index_c[hit]] == query_group[:, None].expand_as(index_c)[hit]).all()
+
+
+@needs_cpp
+@pytest.mark.parametrize("k", [1, 2, 7])
+def test_knn_within_on_a_lattice_keeps_every_tie(k):
+    """On an integer lattice many candidates lie at the same distance and on cell faces (cell =
+    radius = 1.5): the kernel's search, which skips grid rows beyond the k-th neighbour found,
+    must still pick the same (distance, index) winners as the twin, which sees every pair."""
+    axis = torch.arange(12.0)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    queries = torch.cat([points[::5], points[::7] + 0.5, points[::11] + torch.tensor([0.25, 0.5, 0.75])])
+    for radius in (1.5, 1.0, 2.0):
+        index_c, distance_c = knn_within(points, queries, radius, k, backend="cpp")
+        index_r, distance_r = knn_within(points, queries, radius, k, backend="reference")
+        assert torch.equal(index_c, index_r)
+        assert torch.equal(distance_c, distance_r)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -158,6 +177,113 @@ def test_small_component_kernel_equals_twin_with_groups():
     for min_size in (3, 10, 60):
         assert torch.equal(small_component_mask(points, 0.06, min_size, group, backend="cpp"),
                            small_component_mask(points, 0.06, min_size, group, backend="reference"))
+
+
+def neighbour_counts(points: torch.Tensor, radius: float) -> np.ndarray:
+    """Neighbours within radius of every point (itself excluded), float64."""
+    tree = cKDTree(points.double().numpy())
+    return np.array([len(n) - 1 for n in tree.query_ball_point(points.double().numpy(), radius)])
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("min_size", [2, 10, 12])
+def test_known_core_hint_leaves_the_small_fragment_mask_unchanged(backend, min_size):
+    points = clustered_points(3000, seed=5)
+    radius = 0.11
+    sizes = np.bincount(scipy_components(points, radius))[scipy_components(points, radius)]
+    # a hint naming a random 70 % of the true core points (>= min_size - 1 neighbours; counts
+    # away from the float boundary would not differ, the blobs' points have dozens)
+    core = neighbour_counts(points, radius - 1e-4) >= min_size - 1
+    hint = torch.from_numpy(core) & (torch.rand(points.shape[0], generator=torch.Generator().manual_seed(3)) < 0.7)
+    assert hint.any() and (~hint & torch.from_numpy(core)).any()
+    mask = small_component_mask(points, radius, min_size, backend=backend, known_core=hint)
+    assert np.array_equal(mask.numpy(), sizes < min_size)
+    with pytest.raises(ValueError, match="known_core"):
+        small_component_mask(points, radius, min_size, backend=backend, known_core=hint[:-1])
+
+
+def rest_table(points: torch.Tensor, radius: float, k: int = 16) -> torch.Tensor:
+    index, _ = knn_within(points, points, radius, k, query_self=torch.arange(points.shape[0]),
+                          backend="reference")
+    return index.to(torch.int32)
+
+
+@needs_cpp
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
+def test_retained_neighbours_kernel_equals_twin_and_counts(device):
+    rest = clustered_points(3000, seed=7)
+    radius = 0.1
+    table = rest_table(rest, radius, k=12)
+    generator = torch.Generator().manual_seed(8)
+    moved = rest + 0.04 * torch.randn(rest.shape, generator=generator)   # neighbourhoods open
+    rows = torch.randint(0, rest.shape[0], (2000,), generator=generator)
+    kept = retained_neighbours(moved.to(device), rows.to(device), table[rows].to(device), radius,
+                               backend="cpp").cpu()
+    twin = retained_neighbours(moved, rows, table[rows], radius, backend="reference")
+    assert kept.dtype == torch.int32 and torch.equal(kept, twin)
+    listed = table[rows].long()
+    distance = (moved[listed.clamp_min(0)] - moved[rows][:, None]).double().norm(dim=2)
+    clear = ((distance - radius).abs() > 1e-5) | (listed < 0)
+    expected = ((listed >= 0) & (distance <= radius)).sum(1)
+    assert torch.equal(kept[clear.all(1)].long(), expected[clear.all(1)])
+    assert 0 < int(kept.sum()) < int((listed >= 0).sum())      # some kept, some lost
+    assert torch.equal(retained_neighbours(rest, rows, table[rows], radius, backend="cpp"),
+                       (table[rows] >= 0).sum(1).to(torch.int32))   # at rest: every one kept
+
+
+def cracked_block() -> dict[str, torch.Tensor]:
+    """A jittered 20 x 12 x 12 lattice (spacing 1) cut at x = 9.5: the right part moved 2.5
+    along x, a crumb of 4 points thrown off; fractured: the band |x - 9.5| < 3 and the crumb;
+    own Gaussians on the outer layer."""
+    axes = [torch.arange(20.0), torch.arange(12.0), torch.arange(12.0)]
+    rest = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    rest = rest + 0.1 * torch.rand(rest.shape, generator=torch.Generator().manual_seed(4))
+    lattice = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    moved = rest.clone()
+    moved[lattice[:, 0] > 9.5, 0] += 2.5
+    crumb = (lattice[:, 0] == 0) & (lattice[:, 1] == 0) & (lattice[:, 2] < 4)
+    moved[crumb] += torch.tensor([-6.0, 0.0, 0.0])
+    fractured = ((lattice[:, 0] - 9.5).abs() < 3) | crumb
+    outer = ((lattice == 0) | (lattice == torch.tensor([19.0, 11.0, 11.0]))).any(1)
+    return {"rest": rest, "x": moved, "fractured": fractured, "has_own": outer,
+            "lattice": lattice, "crumb": crumb}
+
+
+@needs_cpp
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
+@pytest.mark.parametrize("all_interior", [False, True])
+def test_fracture_neighbourhood_kernel_equals_twin(device, all_interior):
+    block = cracked_block()
+    radius = 1.5
+    table = rest_table(block["rest"], radius, k=20)
+    count = (table >= 0).sum(1).to(torch.int32)
+    args = (table, count, radius, 10, 0.8, block["fractured"], block["has_own"], 2)
+    on_device = [a.to(device) if isinstance(a, torch.Tensor) else a for a in args]
+    kernel = fracture_neighbourhood(block["x"].to(device), *on_device, all_interior=all_interior,
+                                    backend="cpp")
+    twin = fracture_neighbourhood(block["x"], *args, all_interior=all_interior,
+                                  backend="reference")
+    for name, got, want in zip(kernel._fields, kernel, twin):
+        assert torch.equal(got.cpu(), want), name
+    hidden, exposed, queries, neighbours = twin
+    lattice = block["lattice"]
+    assert torch.equal(hidden, block["crumb"])                  # the crumb of 4 points
+    face = (lattice[:, 0] == 9) | (lattice[:, 0] == 10)         # the two faces of the cut
+    deep = ~block["has_own"] & ((lattice[:, 0] - 9.5).abs() > 2)  # inside, away from the cut
+    # the faces lose the neighbours across the cut (5 of the 16..20 at rest on this jittered
+    # lattice; a few face points whose rest neighbourhood the jitter thinned keep just over 80 %)
+    tested = face & block["fractured"] & ~block["has_own"]      # exposure is only asked there
+    assert exposed[tested].float().mean() > 0.95 and not exposed[deep].any()
+    assert not exposed[block["has_own"] | ~block["fractured"]].any()
+    drawn = block["fractured"] & ~hidden
+    if not all_interior:
+        drawn &= block["has_own"] | exposed
+    assert torch.equal(queries, torch.nonzero(drawn).flatten())
+    found = neighbours >= 0
+    partners = neighbours[found]
+    assert not block["fractured"][partners].any() and not hidden[partners].any()
+    gaps = (block["x"][partners] - block["x"][queries[:, None].expand_as(neighbours)[found]]).norm(dim=1)
+    assert (gaps <= radius + 1e-5).all()
 
 
 def random_deformations(count: int, seed: int) -> torch.Tensor:

@@ -130,6 +130,7 @@ def test_bad_inputs_stop_with_one_line(cracked_block: Path, tmp_path: Path, caps
     assert "orbit:N" in run_failing(["--sim", sim, "--views", "orbit:x"], capsys)
     assert "file not found" in run_failing(["--sim", sim, "--views", str(tmp_path / "c.json")], capsys)
     assert "--min-fragment" in run_failing(["--sim", sim, "--min-fragment", "0"], capsys)
+    assert "--exposure" in run_failing(["--sim", sim, "--exposure", "1.5"], capsys)
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     assert "--out" in run_failing(["--sim", sim, "--out", str(blocker / "renders")], capsys)

@@ -59,6 +59,22 @@ HOST_DEVICE inline float distance2(const float* a, const float* b) {
   return dx * dx + dy * dy + dz * dz;
 }
 
+// Rest-neighbour tables: row i lists up to k points (int32 indices, -1 padding) that were
+// point i's neighbours in some earlier configuration (FPGO: the rest state). The number of them
+// still within radius of point i now (|x_i - x_j|^2 <= radius2, the distance2 of the grid
+// queries) is a lower bound of i's neighbour count, and the share of them kept measures how
+// far the neighbourhood has opened since.
+// The count stops once it reaches `stop_at` (pass k or more for the full count).
+HOST_DEVICE inline int32_t retained_count(const float* points, int64_t i, const int32_t* row,
+                                          int k, float radius2, int32_t stop_at) {
+  int32_t kept = 0;
+  for (int n = 0; n < k && kept < stop_at; ++n) {
+    const int32_t j = row[n];
+    if (j >= 0 && distance2(points + 3 * (int64_t)i, points + 3 * (int64_t)j) <= radius2) ++kept;
+  }
+  return kept;
+}
+
 // Visits the grid points within radius of q among the cells (ci, cj, k_first .. k_last) of one
 // row (k_last - k_first <= 2). Their buckets are consecutive, so the row is one contiguous run of
 // sorted points (two when it wraps around the table); a candidate belongs to the row iff its
@@ -98,6 +114,18 @@ HOST_DEVICE inline bool scan_row(const HashGrid& g, const float* q, float radius
   return false;
 }
 
+// Calls row(c, di, dj) for the 9 rows of cells around q (c = q's cell), own row first, until
+// a call returns true.
+template <class Row>
+HOST_DEVICE inline void for_each_row_around(const HashGrid& g, const float* q, Row& row) {
+  constexpr int kOrder[3] = {0, -1, 1};
+  int c[3];
+  cell_of(g, q, c);
+  for (int di : kOrder)
+    for (int dj : kOrder)
+      if (row(c, di, dj)) return;
+}
+
 // Calls visit(j, d2) for every grid point j with |x_j - q|^2 <= radius2 (radius <= cell): the
 // 27 cells around q as 9 rows (ci + di, cj + dj, ck - 1 .. ck + 1), the row through q's own
 // cell first (it holds the most points within radius); a bool visitor returning true ends the
@@ -105,12 +133,39 @@ HOST_DEVICE inline bool scan_row(const HashGrid& g, const float* q, float radius
 template <class Visit>
 HOST_DEVICE inline void for_each_within(const HashGrid& g, const float* q, float radius2,
                                         Visit& visit) {
-  constexpr int kOrder[3] = {0, -1, 1};
-  int c[3];
-  cell_of(g, q, c);
-  for (int di : kOrder)
-    for (int dj : kOrder)
-      if (scan_row(g, q, radius2, c[0] + di, c[1] + dj, c[2] - 1, c[2] + 1, -1, -1, visit)) return;
+  auto row = [&](const int* c, int di, int dj) {
+    return scan_row(g, q, radius2, c[0] + di, c[1] + dj, c[2] - 1, c[2] + 1, -1, -1, visit);
+  };
+  for_each_row_around(g, q, row);
+}
+
+// Squared distance from coordinate x to the slab of cell index c + d along one axis (d in -1,
+// 0, 1; 0 for the query's own cell), minus a margin for the rounding of cell_of, never < 0.
+HOST_DEVICE inline float slab_gap2(const HashGrid& g, int axis, float x, int c, int d) {
+  if (d == 0) return 0.f;
+  const float cell = 1.f / g.inv_cell;
+  const float face = g.origin[axis] + (float)(d < 0 ? c : c + 1) * cell;
+  const float gap = fabsf(x - face) - 1e-4f * cell;
+  return gap > 0.f ? gap * gap : 0.f;
+}
+
+// The search of for_each_within for a visitor that only wants points nearer than its current
+// bound (visit.bound2(radius2): the k nearest so far give the k-th distance², radius2 until k are
+// found): rows and end cells of rows whose slab lies farther than the bound are not scanned.
+// The points skipped could never be accepted, so the result is that of for_each_within.
+template <class Visit>
+HOST_DEVICE inline void for_each_nearer(const HashGrid& g, const float* q, float radius2,
+                                        Visit& visit) {
+  auto row = [&](const int* c, int di, int dj) {
+    const float row2 = slab_gap2(g, 0, q[0], c[0], di) + slab_gap2(g, 1, q[1], c[1], dj);
+    const float bound = visit.bound2(radius2);
+    if (row2 > bound) return false;
+    const int k_first = row2 + slab_gap2(g, 2, q[2], c[2], -1) > bound ? c[2] : c[2] - 1;
+    const int k_last = row2 + slab_gap2(g, 2, q[2], c[2], 1) > bound ? c[2] : c[2] + 1;
+    scan_row(g, q, radius2, c[0] + di, c[1] + dj, k_first, k_last, -1, -1, visit);
+    return false;
+  };
+  for_each_row_around(g, q, row);
 }
 
 // Every pair of grid points within radius exactly once: called for each sorted slot s, it visits
@@ -129,7 +184,7 @@ HOST_DEVICE inline void for_each_forward_pair(const HashGrid& g, int64_t s, floa
 }
 
 // Keeps the k nearest (by d2, then index) of the points it is shown; k <= kMaxNeighbours.
-constexpr int kMaxNeighbours = 16;
+constexpr int kMaxNeighbours = 32;
 
 struct NearestK {
   int k = 0;
@@ -148,6 +203,9 @@ struct NearestK {
     d2[pos] = dist2;
     index[pos] = j;
   }
+
+  // Squared distance a point must not exceed to enter: the k-th best once there are k.
+  HOST_DEVICE float bound2(float radius2) const { return count == k ? d2[k - 1] : radius2; }
 };
 
 // Query filter of the k-nearest search: same group, not the query itself.
@@ -161,6 +219,7 @@ struct KnnVisit {
     if (point_group != nullptr && point_group[j] != group) return;
     best->offer(j, d2);
   }
+  HOST_DEVICE float bound2(float radius2) const { return best->bound2(radius2); }
 };
 
 // Union-find with roots that only ever point to smaller indices: every component ends with its

@@ -64,7 +64,7 @@ void knn_within_cpu(const HashGrid& g, const int32_t* point_group,
     best.k = k;
     KnnVisit visit{&best, point_group, query_group != nullptr ? query_group[q] : 0,
                    query_self != nullptr ? query_self[q] : -1};
-    for_each_within(g, queries + 3 * q, radius2, visit);
+    for_each_nearer(g, queries + 3 * q, radius2, visit);
     for (int n = 0; n < k; ++n) {
       const bool found = n < best.count;
       out_index[q * k + n] = found ? best.index[n] : -1;
@@ -91,13 +91,18 @@ void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points,
 }
 
 void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
-                          int32_t cap, int32_t* parent, uint8_t* core, int32_t* labels) {
+                          int32_t cap, const uint8_t* known_core, int32_t* parent, uint8_t* core,
+                          int32_t* labels) {
   const float radius2 = radius * radius;
   CpuAtomicOps ops;
 #pragma omp parallel for schedule(dynamic, 256)
   for (int64_t s = 0; s < num_points; ++s) {  // bucket order: neighbouring queries share cells
     const int32_t i = g.sorted_point[s];
     parent[i] = i;
+    if (known_core != nullptr && known_core[i]) {
+      core[i] = 1;
+      continue;
+    }
     CapCountVisit count{group, i, cap};
     for_each_within(g, g.sorted_xyz + 3 * s, radius2, count);
     core[i] = count.count >= cap ? 1 : 0;
@@ -111,6 +116,33 @@ void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_p
   }
 #pragma omp parallel for schedule(static)
   for (int64_t i = 0; i < num_points; ++i) labels[i] = uf_find(parent, (int32_t)i, ops);
+}
+
+void small_mask_from_labels_cpu(int64_t num_points, const int32_t* labels, const uint8_t* core,
+                                int32_t min_size, int32_t* scratch, uint8_t* mask) {
+  // scratch[root]: points of the component so far, or -1 once a core point is in it; two
+  // serial passes (a few hundred microseconds for 1e5 points, no atomics)
+  for (int64_t i = 0; i < num_points; ++i) scratch[i] = 0;
+  for (int64_t i = 0; i < num_points; ++i) {
+    int32_t& slot = scratch[labels[i]];
+    if (core[i]) slot = -1;
+    else if (slot >= 0) ++slot;
+  }
+#pragma omp parallel for schedule(static) if (num_points >= 65536)
+  for (int64_t i = 0; i < num_points; ++i) {
+    const int32_t count = scratch[labels[i]];
+    mask[i] = (!core[i] && count >= 0 && count < min_size) ? 1 : 0;
+  }
+}
+
+void retained_neighbours_cpu(const float* points, int64_t num_queries, const int64_t* rows,
+                             const int32_t* table, int k, float radius, const uint8_t* full,
+                             int32_t stop_at, int32_t* kept) {
+  const float radius2 = radius * radius;
+#pragma omp parallel for schedule(static) if (num_queries >= 4096)
+  for (int64_t q = 0; q < num_queries; ++q)
+    kept[q] = retained_count(points, rows != nullptr ? rows[q] : q, table + (int64_t)k * q, k,
+                             radius2, full == nullptr || full[q] ? k : stop_at);
 }
 
 }  // namespace spatial

@@ -52,7 +52,7 @@ __global__ void knn_kernel(HashGrid g, const int32_t* point_group,
   best.k = k;
   KnnVisit visit{&best, point_group, query_group != nullptr ? query_group[q] : 0,
                  query_self != nullptr ? query_self[q] : -1};
-  for_each_within(g, queries + 3 * q, radius * radius, visit);
+  for_each_nearer(g, queries + 3 * q, radius * radius, visit);
   for (int n = 0; n < k; ++n) {
     const bool found = n < best.count;
     out_index[q * k + n] = found ? best.index[n] : -1;
@@ -82,11 +82,16 @@ __global__ void label_kernel(int64_t num, int32_t* parent, int32_t* labels) {
 }
 
 __global__ void core_kernel(HashGrid g, const int32_t* group, int64_t num, float radius,
-                            int32_t cap, int32_t* parent, uint8_t* core) {
+                            int32_t cap, const uint8_t* known_core, int32_t* parent,
+                            uint8_t* core) {
   const int64_t s = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;  // bucket order
   if (s >= num) return;
   const int32_t i = g.sorted_point[s];
   parent[i] = i;
+  if (known_core != nullptr && known_core[i]) {
+    core[i] = 1;
+    return;
+  }
   CapCountVisit count{group, i, cap};
   for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, count);
   core[i] = count.count >= cap ? 1 : 0;
@@ -101,6 +106,15 @@ __global__ void unite_non_core_kernel(HashGrid g, const int32_t* group, int64_t 
   CudaAtomicOps ops;
   UniteVisit<CudaAtomicOps> visit{parent, group, i, &ops};
   for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, visit);
+}
+
+__global__ void retained_kernel(const float* points, int64_t num_queries, const int64_t* rows,
+                                const int32_t* table, int k, float radius2, const uint8_t* full,
+                                int32_t stop_at, int32_t* kept) {
+  const int64_t q = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
+  if (q >= num_queries) return;
+  kept[q] = retained_count(points, rows != nullptr ? rows[q] : q, table + (int64_t)k * q, k,
+                             radius2, full == nullptr || full[q] ? k : stop_at);
 }
 
 }  // namespace
@@ -132,15 +146,23 @@ void components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points
 }
 
 void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points,
-                           float radius, int32_t cap, int32_t* parent, uint8_t* core,
-                           int32_t* labels, void* stream) {
+                           float radius, int32_t cap, const uint8_t* known_core, int32_t* parent,
+                           uint8_t* core, int32_t* labels, void* stream) {
   if (num_points == 0) return;
   const cudaStream_t s = (cudaStream_t)stream;
   core_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(g, group, num_points, radius, cap,
-                                                          parent, core);
+                                                          known_core, parent, core);
   unite_non_core_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(g, group, num_points, radius,
                                                                     core, parent);
   label_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(num_points, parent, labels);
+}
+
+void retained_neighbours_cuda(const float* points, int64_t num_queries, const int64_t* rows,
+                              const int32_t* table, int k, float radius, const uint8_t* full,
+                              int32_t stop_at, int32_t* kept, void* stream) {
+  if (num_queries == 0) return;
+  retained_kernel<<<blocks_for(num_queries), kThreads, 0, (cudaStream_t)stream>>>(
+      points, num_queries, rows, table, k, radius * radius, full, stop_at, kept);
 }
 
 }  // namespace spatial

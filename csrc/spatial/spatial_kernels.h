@@ -32,8 +32,22 @@ void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points,
 // neighbours; labels (N) = the root of each point in that partial union-find. A point lies in a
 // component of fewer than cap + 1 points iff it is not core and no core point shares its label
 // (the binding turns this into the mask). parent (N) is scratch.
+// `known_core` (N, may be null): points the caller knows to have at least `cap` neighbours
+// (e.g. from retained_neighbours_cpu); their count is not taken. Only a hint: the result is
+// the same with or without it, as long as it names true core points only.
 void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
-                          int32_t cap, int32_t* parent, uint8_t* core, int32_t* labels);
+                          int32_t cap, const uint8_t* known_core, int32_t* parent, uint8_t* core,
+                          int32_t* labels);
+// mask (N) = 1 where a point is not core, no core point shares its label and fewer than
+// min_size points do: the small-fragment mask from small_components_cpu's labels and core;
+// scratch (N) is overwritten (it may be small_components_cpu's parent buffer).
+void small_mask_from_labels_cpu(int64_t num_points, const int32_t* labels, const uint8_t* core,
+                                int32_t min_size, int32_t* scratch, uint8_t* mask);
+// kept (Q) = retained_count (hash_grid.h) of point rows[q] (q itself when rows is null) against
+// table row q (Q, k): the full count where full[q] (or full is null), else stopped at stop_at.
+void retained_neighbours_cpu(const float* points, int64_t num_queries, const int64_t* rows,
+                             const int32_t* table, int k, float radius, const uint8_t* full,
+                             int32_t stop_at, int32_t* kept);
 
 // ---- CUDA (raw device pointers; stream is a cudaStream_t passed as void*) ---------------
 #ifdef FGS_WITH_CUDA
@@ -47,8 +61,11 @@ void knn_within_cuda(const HashGrid& g, const int32_t* point_group,
 void components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
                      int32_t* parent, int32_t* labels, void* stream);
 void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points,
-                           float radius, int32_t cap, int32_t* parent, uint8_t* core,
-                           int32_t* labels, void* stream);
+                           float radius, int32_t cap, const uint8_t* known_core, int32_t* parent,
+                           uint8_t* core, int32_t* labels, void* stream);
+void retained_neighbours_cuda(const float* points, int64_t num_queries, const int64_t* rows,
+                              const int32_t* table, int k, float radius, const uint8_t* full,
+                              int32_t stop_at, int32_t* kept, void* stream);
 #endif
 
 }  // namespace spatial

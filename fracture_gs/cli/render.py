@@ -27,7 +27,7 @@ import numpy as np
 import torch
 
 from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
-from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.mpm.output import write_text_atomic
 from fracture_gs.render.frame_gaussians import FrameGaussians, ModelError, SceneGaussians
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png
@@ -37,7 +37,7 @@ from fracture_gs.sim.folder import Simulation, SimulationError
 
 DEFAULT_ORBIT_SIZE = (800, 800)
 TIMING_COLUMNS = ("frame", "gaussians", "fpgo_gaussians", "fractured", "hidden_particles",
-                  "load_wait_ms", "deform_ms", "fpgo_ms", "raster_ms", "raster_ms_per_view",
+                  "buried_particles", "load_wait_ms", "deform_ms", "fpgo_ms", "raster_ms", "raster_ms_per_view",
                   "ply_ms")
 
 
@@ -124,7 +124,23 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         "global rule); 'none' they blend like all others")
     parser.add_argument("--no-exclusive", dest="exclusive", action="store_const", const="none",
                         help="same as --exclusive none")
+    add_interior_options(parser)
     return parser.parse_args(argv)
+
+
+def add_interior_options(parser: argparse.ArgumentParser) -> None:
+    """``--interior`` and ``--exposure`` (FPGOSettings.interior / .exposure); the benchmarks
+    take the same options."""
+    defaults = FPGOSettings()
+    parser.add_argument("--interior", choices=INTERIOR_RULES, default=defaults.interior,
+                        help="FPGO Gaussians for fractured interior particles: 'exposed' "
+                        "(default) only on fracture surfaces, where they kept fewer than "
+                        "--exposure of their rest neighbours (paper App. A.6); 'all' every "
+                        "fractured one (SPEC §6.3 step 4 as written)")
+    parser.add_argument("--exposure", type=float, default=defaults.exposure,
+                        help=f"FPGO exposure test: share of the rest neighbours within d_c "
+                        f"below which a particle is on a fracture surface (default "
+                        f"{defaults.exposure})")
 
 
 def resolve_device(name: str | None) -> torch.device:
@@ -145,7 +161,8 @@ def options_from_args(args: argparse.Namespace) -> RenderOptions:
     try:
         settings = FPGOSettings(dc_factor=args.dc_factor, k_neighbours=args.k_neighbours,
                                 k_sigma=args.k_sigma, min_fragment=args.min_fragment,
-                                exclusive=args.exclusive)
+                                exclusive=args.exclusive, interior=args.interior,
+                                exposure=args.exposure)
     except ValueError as exc:
         name = str(exc).split()[0].replace("_", "-")
         raise InvalidInput(f"--{name}: {exc}") from None
@@ -285,6 +302,7 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
                          "fpgo_gaussians": int(gaussians.is_fpgo.sum()),
                          "fractured": int(frame.fractured.sum()),
                          "hidden_particles": stats.hidden_particles if stats else 0,
+                         "buried_particles": stats.buried_particles if stats else 0,
                          "load_wait_ms": load_wait, "deform_ms": frame_ms - fpgo_ms,
                          "fpgo_ms": fpgo_ms, "raster_ms": raster_ms,
                          "raster_ms_per_view": raster_ms / len(views), "ply_ms": ply_ms})

@@ -9,9 +9,16 @@ particles), it returns the Gaussians to draw:
    particles are not drawn at all (App. A.6);
 3. fractured particles without a trained Gaussian (interior particles) get one: isotropic, scale
    = spacing / 2, SH and opacity interpolated once in the rest configuration (inverse distance,
-   ``interpolation_k`` nearest surface Gaussians of the object);
-4. every fractured particle i looks up its ``k_neighbours`` nearest intact particles j of its
-   object within d_c (current positions, hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
+   ``interpolation_k`` nearest surface Gaussians of the object) — by default only those on a
+   fracture surface (``FPGOSettings.interior``, "exposed"; paper App. A.6 gives Gaussians to the
+   internal particles a fracture exposes): fewer than ``exposure`` of their rest neighbours (the
+   ``REST_NEIGHBOURS`` nearest within d_c at rest) are still within d_c. The NACC flag marks a
+   whole damaged volume, most of it buried under intact material; its buried particles get
+   nothing, as without fracture. ``interior="all"`` gives every fractured one a Gaussian (SPEC
+   §6.3 step 4 as written);
+4. every fractured particle i that has a trained Gaussian or gets one in step 3 looks up its
+   ``k_neighbours`` nearest intact particles j of its object within d_c (current positions,
+   hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
    σ the Gaussian's current size det(Σ)^(1/6), give one lens ellipsoid per overlapping pair
    (:func:`fracture_gs.fracture.ops.lens_ellipsoids`), with g_i's opacity, SH and view rotation,
    in exclusive group i (``FPGOSettings.exclusive``: per pixel only the nearest lens of g_i
@@ -23,12 +30,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import torch
 
 from fracture_gs.fracture.ops import LensEllipsoids, lens_ellipsoids
-from fracture_gs.fracture.spatial import knn_within, small_component_mask
+from fracture_gs.fracture.spatial import fracture_neighbourhood, knn_within
 
 if TYPE_CHECKING:  # pragma: no cover
     from fracture_gs.render.frame_gaussians import FrameGaussians
@@ -37,6 +44,8 @@ InteriorDeform = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torc
 
 
 EXCLUSIVE_RULES = ("group", "all", "none")
+INTERIOR_RULES = ("exposed", "all")
+REST_NEIGHBOURS = 20   # rest neighbours per particle in the exposure test and the core hint
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,9 @@ class FPGOSettings:
     exclusive: str = "group"     # "group": per pixel only the nearest lens of each replaced g_i
     #                              blends (paper §3.2.2); "all": only the nearest lens of all
     #                              (SPEC §6.1's global rule); "none": lenses blend like any other
+    interior: str = "exposed"    # fractured interior particles FPGO draws: "exposed" (on a
+    #                              fracture surface, paper App. A.6) or "all" (SPEC §6.3 step 4)
+    exposure: float = 0.8        # "exposed": fewer than this share of the rest neighbours kept
 
     def __post_init__(self) -> None:
         if isinstance(self.exclusive, bool):  # the earlier bool setting: True = the lenses' rule
@@ -68,6 +80,11 @@ class FPGOSettings:
             raise ValueError(f"min_fragment must be >= 1, got {self.min_fragment}")
         if self.interpolation_k < 1:
             raise ValueError(f"interpolation_k must be >= 1, got {self.interpolation_k}")
+        if self.interior not in INTERIOR_RULES:
+            raise ValueError(f"interior must be one of {', '.join(INTERIOR_RULES)}, "
+                             f"got {self.interior!r}")
+        if not 0.0 < self.exposure <= 1.0:
+            raise ValueError(f"exposure must be in (0, 1], got {self.exposure}")
 
 
 @dataclass
@@ -77,6 +94,9 @@ class FractureParticles:
     ``own_gaussian[p]`` is the row of particle p's trained (or flat-colour) Gaussian in the
     frame's Gaussians, -1 for particles without one; for those, ``interior_row[p]`` indexes
     ``interior_opacity`` / ``interior_sh`` (the interpolated appearance), else -1.
+    ``rest_neighbours[o]`` (rows of object o, ``REST_NEIGHBOURS``) int32 lists each particle's
+    nearest neighbours within d_c at rest (indices into ``rows_by_object[o]``, -1 padding),
+    ``rest_neighbour_count[o]`` how many it lists (:func:`rest_neighbour_tables`).
     """
 
     object_id: torch.Tensor         # (N,) int64
@@ -89,6 +109,9 @@ class FractureParticles:
     object_rotation: torch.Tensor   # (O,3,3) rotation of each object's scene transform
     rows_by_object: list[torch.Tensor]  # particle indices of each object
     centre_gaussian: torch.Tensor   # (N,) row of the own Gaussian the particle drives, else -1
+    rest_neighbours: list[torch.Tensor]       # per object (Q_o, K) int32, indices into its rows
+    rest_neighbour_count: list[torch.Tensor]  # per object (Q_o,) int32
+    object_slices: list[slice | None] = field(default_factory=list)  # rows as a slice, if they are one
 
 
 @dataclass
@@ -97,6 +120,7 @@ class FPGOStats:
 
     fractured: int = 0            # fractured particles (latched flag)
     hidden_particles: int = 0     # particles in fragments below min_fragment
+    buried_particles: int = 0     # fractured interior particles not on a fracture surface
     interior_gaussians: int = 0   # Gaussians given to fractured interior particles
     lens_gaussians: int = 0       # MVEE Gaussians drawn
     replaced_particles: int = 0   # fractured particles whose Gaussians the lenses replaced
@@ -112,49 +136,93 @@ def cube_root_abs_det(F: torch.Tensor) -> torch.Tensor:
     return det.abs().pow(1.0 / 3.0)
 
 
+def rest_neighbour_tables(rest_x: torch.Tensor, rows_by_object: list[torch.Tensor],
+                          radii: list[float], backend: str = "auto"
+                          ) -> tuple[list[torch.Tensor], list[torch.Tensor]]:
+    """Per object: the ``REST_NEIGHBOURS`` nearest particles of the same object within its d_c
+    at rest (``radii[o]``) of each of its particles, as (Q_o, K) int32 indices into the object's
+    rows (-1 padding), and how many each row lists (Q_o,) int32."""
+    tables, counts = [], []
+    for rows, radius in zip(rows_by_object, radii):
+        points = rest_x.index_select(0, rows)
+        local, _ = knn_within(points, points, radius, REST_NEIGHBOURS,
+                              query_self=torch.arange(rows.numel(), device=rows.device),
+                              backend=backend)
+        tables.append(local.to(torch.int32).contiguous())
+        counts.append((local >= 0).sum(1).to(torch.int32))
+    return tables, counts
+
+
+def contiguous_span(rows: torch.Tensor) -> slice | None:
+    """``rows`` as a slice when they are one ascending run (an object's particles stored
+    together), else None."""
+    if rows.numel() == 0:
+        return None
+    start, stop = int(rows[0]), int(rows[-1]) + 1
+    return slice(start, stop) if stop - start == rows.numel() and bool(
+        torch.equal(rows, torch.arange(start, stop, device=rows.device))) else None
+
+
+def _rows_of(tensor: torch.Tensor, rows: torch.Tensor, span: slice | None) -> torch.Tensor:
+    return tensor[span] if span is not None else tensor.index_select(0, rows)
+
+
+class Neighbourhoods(NamedTuple):
+    """Per-frame neighbourhood facts of all particles (global rows)."""
+
+    hidden: torch.Tensor   # (N,) bool: in a fragment below min_fragment
+    exposed: torch.Tensor  # (N,) bool: fractured interior particles on a fracture surface
+    query: torch.Tensor    # (N,) bool: fractured particles FPGO gives lenses / a Gaussian
+    pair_i: torch.Tensor   # (P,) int64: a query particle ...
+    pair_j: torch.Tensor   # (P,) int64: ... and one of its k nearest intact neighbours
+
+
+def neighbourhoods(x: torch.Tensor, fractured: torch.Tensor, particles: FractureParticles,
+                   settings: FPGOSettings, active_objects: torch.Tensor,
+                   backend: str = "auto") -> Neighbourhoods:
+    """SPEC §6.3 steps 2 and 5 with the exposure test, per object flagged in ``active_objects``
+    (O,) bool, each on one hash grid (:func:`fracture_gs.fracture.spatial.fracture_neighbourhood`):
+    the small fragments, the exposed particles, the fractured particles FPGO draws (all of them
+    but the hidden ones with ``interior="all"``; else those with a trained Gaussian and the
+    exposed ones) and their ``k_neighbours`` nearest intact, visible neighbours within d_c."""
+    n = x.shape[0]
+    hidden = torch.zeros(n, dtype=torch.bool, device=x.device)
+    exposed = torch.zeros(n, dtype=torch.bool, device=x.device)
+    query = torch.zeros(n, dtype=torch.bool, device=x.device)
+    has_own = particles.own_gaussian >= 0
+    pair_i, pair_j = [], []
+    for o, rows in enumerate(particles.rows_by_object):
+        if not bool(active_objects[o]) or rows.numel() == 0:
+            continue
+        span = particles.object_slices[o] if particles.object_slices else None
+        found = fracture_neighbourhood(
+            _rows_of(x, rows, span), particles.rest_neighbours[o],
+            particles.rest_neighbour_count[o], settings.dc_factor * float(particles.object_spacing[o]),
+            settings.min_fragment, settings.exposure, _rows_of(fractured, rows, span),
+            _rows_of(has_own, rows, span), settings.k_neighbours,
+            all_interior=settings.interior == "all", backend=backend)
+        hidden[span if span is not None else rows] = found.hidden
+        exposed[span if span is not None else rows] = found.exposed
+        queries = rows.index_select(0, found.queries)
+        query[queries] = True
+        linked = found.neighbours >= 0
+        pair_i.append(queries[:, None].expand_as(found.neighbours)[linked])
+        pair_j.append(rows[found.neighbours[linked]])
+    empty = torch.empty(0, dtype=torch.long, device=x.device)
+    return Neighbourhoods(hidden, exposed, query, torch.cat(pair_i) if pair_i else empty,
+                          torch.cat(pair_j) if pair_j else empty)
+
+
 def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings: FPGOSettings,
                         active_objects: torch.Tensor, backend: str = "auto") -> torch.Tensor:
     """(N,) bool: particles in a fragment (per object, d_c graph) below ``min_fragment``.
     Only objects flagged in ``active_objects`` (O,) bool are searched."""
-    hidden = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
-    if settings.min_fragment <= 1:
-        return hidden
-    for o, rows in enumerate(particles.rows_by_object):
-        if not bool(active_objects[o]) or rows.numel() == 0:
-            continue
-        radius = settings.dc_factor * float(particles.object_spacing[o])
-        hidden[rows] = small_component_mask(x.index_select(0, rows), radius,
-                                            settings.min_fragment, backend=backend)
-    return hidden
+    nothing = torch.zeros(x.shape[0], dtype=torch.bool, device=x.device)
+    return neighbourhoods(x, nothing, particles, settings, active_objects, backend).hidden
 
 
 GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
                     "object_id", "is_fpgo", "particle")
-
-
-def neighbour_pairs(x: torch.Tensor, query: torch.Tensor, candidate: torch.Tensor,
-                    particles: FractureParticles, settings: FPGOSettings,
-                    active_objects: torch.Tensor, backend: str = "auto"
-                    ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(i, j) particle pairs: the ``k_neighbours`` nearest ``candidate`` particles j within d_c
-    of every ``query`` particle i, in the same object (SPEC §6.3 step 2)."""
-    pair_i, pair_j = [], []
-    for o, rows in enumerate(particles.rows_by_object):
-        if not bool(active_objects[o]):
-            continue
-        queries, points = rows[query[rows]], rows[candidate[rows]]
-        if queries.numel() == 0 or points.numel() == 0:
-            continue
-        d_c = settings.dc_factor * float(particles.object_spacing[o])
-        index, _ = knn_within(x.index_select(0, points), x.index_select(0, queries), d_c,
-                              settings.k_neighbours, backend=backend)
-        found = index >= 0
-        pair_i.append(queries[:, None].expand_as(index)[found])
-        pair_j.append(points[index[found]])
-    if not pair_i:
-        empty = torch.empty(0, dtype=torch.long, device=x.device)
-        return empty, empty
-    return torch.cat(pair_i), torch.cat(pair_j)
 
 
 def particle_spheres(rows: torch.Tensor, x: torch.Tensor, F_E: torch.Tensor,
@@ -189,24 +257,24 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     active = (torch.bincount(particles.object_id[fractured],
                              minlength=len(particles.rows_by_object)) > 0).cpu()
 
+    # small fragments (step 5), the exposure test, and the k nearest intact neighbours of the
+    # fractured particles FPGO draws (step 2), on one hash grid per object
     tick = time.perf_counter()
-    hidden = small_fragment_mask(x, particles, settings, active, backend)
+    found = neighbourhoods(x, fractured, particles, settings, active, backend)
+    hidden, pair_i, pair_j = found.hidden, found.pair_i, found.pair_j
     stats.hidden_particles = int(hidden.sum())
-    detail["fragments"] = (time.perf_counter() - tick) * 1e3
+    if settings.interior == "exposed":
+        stats.buried_particles = int((fractured & ~hidden & (particles.own_gaussian < 0)
+                                      & ~found.exposed).sum())
+    detail["neighbours"] = (time.perf_counter() - tick) * 1e3
 
-    # fractured interior particles get their interpolated Gaussian (step 4)
+    # fractured interior particles FPGO draws get their interpolated Gaussian (step 4)
     tick = time.perf_counter()
-    query = fractured & ~hidden
-    interior = torch.nonzero(query & (particles.own_gaussian < 0)).flatten()
+    interior = torch.nonzero(found.query & (particles.own_gaussian < 0)).flatten()
     interior_deformed = dict(zip(("means", "covariances", "view_rotations"),
                                  deform_interior(interior)))
     detail["interior"] = (time.perf_counter() - tick) * 1e3
 
-    # k nearest intact neighbours (step 2) and the lens ellipsoids of the pairs (step 3)
-    tick = time.perf_counter()
-    pair_i, pair_j = neighbour_pairs(x, query, ~fractured & ~hidden, particles, settings, active,
-                                     backend)
-    detail["neighbours"] = (time.perf_counter() - tick) * 1e3
     tick = time.perf_counter()
     centre_i, radius_i = particle_spheres(pair_i, x, F_E, gaussians.means, particles,
                                           settings.k_sigma)

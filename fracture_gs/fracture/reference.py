@@ -118,6 +118,39 @@ def small_component_mask(points: torch.Tensor, group: torch.Tensor | None, radiu
     return sizes[roots] < min_size
 
 
+def retained_neighbours(points: torch.Tensor, rows: torch.Tensor, table: torch.Tensor,
+                        radius: float) -> torch.Tensor:
+    """Twin of ``spatial_retained_neighbours``: (Q,) int32 count of the table row's points
+    (-1: none) within ``radius`` of point ``rows[q]`` (float32 dx² + dy² + dz², as the kernel)."""
+    listed = table.long()
+    diff = points[listed.clamp_min(0)] - points[rows][:, None, :]
+    d2 = diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1] + diff[..., 2] * diff[..., 2]
+    radius2 = torch.tensor(radius, dtype=torch.float32) ** 2
+    return ((listed >= 0) & (d2 <= radius2.to(points.device))).sum(1).to(torch.int32)
+
+
+def fracture_neighbourhood(points: torch.Tensor, rest_table: torch.Tensor,
+                           rest_count: torch.Tensor, radius: float, min_size: int,
+                           exposure: float, fractured: torch.Tensor, has_own: torch.Tensor,
+                           k: int, all_interior: bool
+                           ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Twin of ``spatial_fracture_neighbourhood`` from the other twins: (hidden, exposed,
+    queries, neighbours)."""
+    n = points.shape[0]
+    kept = retained_neighbours(points, torch.arange(n, device=points.device), rest_table, radius)
+    exposed = fractured & ~has_own & (kept.double() < rest_count.double() * exposure)
+    hidden = small_component_mask(points, None, radius, min_size) if min_size > 1 else \
+        torch.zeros(n, dtype=torch.bool, device=points.device)
+    drawn = torch.ones_like(exposed) if all_interior else has_own | exposed
+    queries = torch.nonzero(fractured & ~hidden & drawn).flatten()
+    candidates = ~fractured & ~hidden
+    group = candidates.to(torch.int32)
+    neighbours, _ = knn_within(points, group, points[queries],
+                               torch.ones(queries.shape[0], dtype=torch.int32, device=points.device),
+                               queries.to(torch.int32), radius, k)
+    return hidden, exposed, queries, neighbours
+
+
 def polar_rotation(F: torch.Tensor) -> torch.Tensor:
     """Rotation of the polar decomposition of F (…,3,3) with det +1: U Vᵀ of the SVD with the
     smallest singular direction flipped when det(U Vᵀ) < 0 (the signed SVD of the kernels)."""

@@ -36,7 +36,8 @@ import torch
 
 from fracture_gs.config.scene import ObjectConfig
 from fracture_gs.fracture.fpgo import (GAUSSIAN_COLUMNS, FPGOSettings, FPGOStats,
-                                       FractureParticles, apply_fpgo)
+                                       FractureParticles, apply_fpgo, contiguous_span,
+                                       rest_neighbour_tables)
 from fracture_gs.fracture.ops import deform_gaussians
 from fracture_gs.fracture.spatial import k_nearest
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, rgb_to_sh_dc, write_ply
@@ -365,14 +366,19 @@ class SceneGaussians:
         arrays = _fracture_arrays(sim, tables, coefficients, settings.interpolation_k)
         rotations = np.stack([_object_transform(obj)[0] for obj in sim.scene.objects])
         obj_id = sim.particles.obj_id
+        rows_by_object = [tensor(np.nonzero(obj_id == o)[0], torch.int64) for o in range(len(tables))]
+        rest_neighbours, rest_counts = rest_neighbour_tables(
+            tensor(sim.particles.rest_x, torch.float32), rows_by_object,
+            [settings.dc_factor * t.spacing for t in tables])
         fracture = FractureParticles(
             **{name: tensor(value, torch.float32 if value.dtype.kind == "f" else torch.int64)
                for name, value in arrays.items()},
             object_id=tensor(obj_id, torch.int64),
             object_spacing=torch.as_tensor([t.spacing for t in tables], dtype=torch.float64),
             object_rotation=tensor(rotations, torch.float32),
-            rows_by_object=[tensor(np.nonzero(obj_id == o)[0], torch.int64)
-                            for o in range(len(tables))])
+            rows_by_object=rows_by_object, rest_neighbours=rest_neighbours,
+            rest_neighbour_count=rest_counts,
+            object_slices=[contiguous_span(rows) for rows in rows_by_object])
         return cls(table_columns, fracture, settings, sim.object_names, sources)
 
     def _deform_interior(self, x: torch.Tensor, F_E: torch.Tensor, backend: str):
