@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from fracture_gs._backend import compiled_module
+from fracture_gs.cli.render import add_interior_options
 from fracture_gs.config.scene import parse_scene
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.gaussians import GaussianModel
@@ -120,11 +121,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default="group",
                         help="FPGO lens exclusive rule (render.py --exclusive)")
+    add_interior_options(parser)
     args = parser.parse_args(argv)
     device = torch.device(args.device)
     with tempfile.TemporaryDirectory(prefix="bench_render_") as tmp:
         sim, frame, spacing = build(args.particles, args.fractured, Path(tmp))
-        scene = SceneGaussians.from_simulation(sim, device, FPGOSettings(exclusive=args.exclusive))
+        scene = SceneGaussians.from_simulation(sim, device, FPGOSettings(
+            exclusive=args.exclusive, interior=args.interior, exposure=args.exposure))
     frame = frame.to(device)
     views = orbit_views(args.views, (0.0, 0.0, 0.0), 1.1, args.size, args.size)
     cameras = [view.camera.to(device) for view in views]
@@ -136,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
 
     result: dict = {"particles": len(sim.particles), "fractured": int(frame.fractured.sum()),
                     "size": args.size, "views": args.views, "repeats": args.repeats,
-                    "exclusive": args.exclusive,
+                    "exclusive": args.exclusive, "interior": args.interior,
+                    "exposure": args.exposure,
                     "device": str(device), "compiled": compiled_module() is not None,
                     "omp_threads": int(compiled_module().openmp_max_threads()) if compiled_module() else 0,
                     "torch_threads": torch.get_num_threads(), "cpu_count": os.cpu_count()}

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from fracture_gs.cli.render import resolve_views
+from fracture_gs.cli.render import add_interior_options, resolve_views
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.frame_gaussians import SceneGaussians
@@ -44,7 +44,8 @@ def timed_frame(scene: SceneGaussians, frame, cameras, background: torch.Tensor,
             "fpgo_ms": gaussians.stats.milliseconds if gaussians.stats is not None else 0.0,
             "detail_ms": dict(gaussians.stats.detail_ms) if gaussians.stats is not None else {},
             "lenses": gaussians.stats.lens_gaussians if gaussians.stats is not None else 0,
-            "interior": gaussians.stats.interior_gaussians if gaussians.stats is not None else 0}
+            "interior": gaussians.stats.interior_gaussians if gaussians.stats is not None else 0,
+            "buried": gaussians.stats.buried_particles if gaussians.stats is not None else 0}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--step", type=int, default=1, help="every step-th of those frames")
     parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default="group",
                         help="FPGO lens exclusive rule (render.py --exclusive)")
+    add_interior_options(parser)
     args = parser.parse_args(argv)
     sim = Simulation.open(args.sim)
     onset = fracture_window_from_simulation(sim.root).onset_frame
@@ -69,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
         frames = list(sim.frames)
     frames = frames[::max(args.step, 1)]
     tick = time.perf_counter()
-    scene = SceneGaussians.from_simulation(sim, settings=FPGOSettings(exclusive=args.exclusive))
+    scene = SceneGaussians.from_simulation(sim, settings=FPGOSettings(
+        exclusive=args.exclusive, interior=args.interior, exposure=args.exposure))
     bind_s = time.perf_counter() - tick
     cameras = [v.camera for v in resolve_views(f"orbit:{args.views}", sim, sim.frames,
                                                (args.size, args.size))]
@@ -92,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
                "raster_no_fpgo_ms": round(best[False]["raster_ms"], 1),
                "raster_fpgo_ms": round(best[True]["raster_ms"], 1),
                "fpgo_detail_ms": {k: round(v, 1) for k, v in best[True]["detail_ms"].items()},
-               "lens_gaussians": best[True]["lenses"], "interior_gaussians": best[True]["interior"]}
+               "lens_gaussians": best[True]["lenses"], "interior_gaussians": best[True]["interior"],
+               "buried_particles": best[True]["buried"]}
         row["added"] = round(row["fpgo_ms"] / row["no_fpgo_ms"] - 1.0, 3)
         rows.append(row)
         print(f"frame {index}: {row['no_fpgo_ms']:.0f} ms without FPGO, {row['fpgo_ms']:.0f} ms "
@@ -105,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     no_fpgo, fpgo = summary("no_fpgo_ms"), summary("fpgo_ms")
     result = {"sim": str(args.sim), "particles": len(sim.particles), "onset": onset,
               "frames": len(rows), "views": args.views, "size": args.size, "exclusive": args.exclusive,
+              "interior": args.interior, "exposure": args.exposure,
               "repeats": args.repeats, "bind_seconds": round(bind_s, 2),
               "omp_threads": os.environ.get("OMP_NUM_THREADS"),
               "torch_threads": torch.get_num_threads(), "cpu_count": os.cpu_count(),

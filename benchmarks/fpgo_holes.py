@@ -15,8 +15,12 @@ splats at the outline rather than filled fracture surfaces. Particles that FPGO 
 fragments (below ``--min-fragment``) are left out of the silhouette for all renders, so all are
 judged on the same pixels.
 
+``--map FRAME PATH`` also draws where the two renders differ in that frame, every view side by
+side: the dilated silhouette grey, its holes (alpha < 0.5) red with FPGO only, green without FPGO
+only, dark grey in both.
+
 Usage: PYTHONPATH=. python benchmarks/fpgo_holes.py --sim output/sims/<name> [--views 4]
-           [--size 400] [--markdown]
+           [--size 400] [--markdown] [--map FRAME PATH]
 Prints one JSON object (per-frame numbers, both averaged over the views); ``--markdown`` adds a
 table for the README on stderr.
 """
@@ -31,7 +35,7 @@ import cv2
 import numpy as np
 import torch
 
-from fracture_gs.cli.render import resolve_views
+from fracture_gs.cli.render import add_interior_options, resolve_views
 from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.camera import Camera
@@ -70,9 +74,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="silhouette dilation in projected rest spacings (default 1)")
     parser.add_argument("--min-fragment", type=int, default=FPGOSettings().min_fragment)
     parser.add_argument("--markdown", action="store_true")
+    parser.add_argument("--map", nargs=2, metavar=("FRAME", "PATH"), default=None,
+                        help="also write a picture of the hole pixels of FRAME to PATH")
+    add_interior_options(parser)
     args = parser.parse_args(argv)
     sim = Simulation.open(args.sim)
-    settings = FPGOSettings(min_fragment=args.min_fragment)
+    settings = FPGOSettings(min_fragment=args.min_fragment, interior=args.interior,
+                            exposure=args.exposure)
     scene = SceneGaussians.from_simulation(sim, settings=settings)
     onset = fracture_window_from_simulation(sim.root).onset_frame
     result: dict = {"sim": str(args.sim), "particles": len(sim.particles), "views": args.views,
@@ -95,6 +103,7 @@ def main(argv: list[str] | None = None) -> int:
                     "fpgo_no_exclusive": fpgo.without_exclusive()}
         holes = {(label, kind): 0 for label in labels for kind in ("closed", "band")}
         pixels = {"closed": 0, "band": 0}
+        panels = []
         for view in views:
             closed = np.zeros((args.size, args.size), bool)
             band = np.zeros((args.size, args.size), bool)
@@ -107,16 +116,27 @@ def main(argv: list[str] | None = None) -> int:
                 band |= object_band
             pixels["closed"] += int(closed.sum())
             pixels["band"] += int(band.sum())
+            open_pixels = {}
             for label, gaussians in rendered.items():
                 alpha = gaussians.rasterize(view.camera)["alpha"].numpy()
                 holes[(label, "closed")] += int((alpha[closed] < 0.5).sum())
                 holes[(label, "band")] += int((alpha[band] < 0.5).sum())
+                open_pixels[label] = band & (alpha < 0.5)
+            if args.map is not None and index == int(args.map[0]):
+                panels.append(hole_map(band, open_pixels["fpgo"], open_pixels["no_fpgo"]))
         row = {"frame": index, "fractured": int(frame.fractured.sum()),
                "gaussians_fpgo": len(fpgo), "silhouette_pixels": pixels["closed"]}
         for label in labels:
             row[f"hole_fraction_{label}"] = round(holes[(label, "closed")] / max(pixels["closed"], 1), 6)
             row[f"band_hole_fraction_{label}"] = round(holes[(label, "band")] / max(pixels["band"], 1), 6)
         result["frames"].append(row)
+        if panels:
+            picture = np.concatenate(panels, axis=1)
+            rows = np.nonzero((picture < 255).any(axis=(1, 2)))[0]   # the rows the objects cover
+            if rows.size:
+                picture = picture[max(rows[0] - 8, 0):rows[-1] + 9]
+            cv2.imwrite(args.map[1], picture[..., ::-1])
+            result["map"] = {"frame": index, "path": args.map[1]}
         print(f"frame {index}: holes {row['hole_fraction_fpgo']:.5f} with FPGO "
               f"({row['hole_fraction_fpgo_no_exclusive']:.5f} lenses not exclusive), "
               f"{row['hole_fraction_no_fpgo']:.5f} without", file=sys.stderr)
@@ -134,6 +154,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.markdown:
         print(markdown_table(rows), file=sys.stderr)
     return 0
+
+
+def hole_map(silhouette_pixels: np.ndarray, holes_fpgo: np.ndarray,
+             holes_no_fpgo: np.ndarray) -> np.ndarray:
+    """(H, W, 3) uint8 RGB: silhouette grey, holes red (FPGO only), green (without FPGO only),
+    dark grey (both)."""
+    image = np.full(silhouette_pixels.shape + (3,), 255, np.uint8)
+    image[silhouette_pixels] = (215, 215, 215)
+    image[holes_fpgo & holes_no_fpgo] = (110, 110, 110)
+    image[holes_fpgo & ~holes_no_fpgo] = (220, 30, 30)
+    image[holes_no_fpgo & ~holes_fpgo] = (20, 150, 40)
+    return image
 
 
 def markdown_table(rows: list[dict]) -> str:

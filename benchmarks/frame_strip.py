@@ -1,6 +1,8 @@
 """A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top rows:
 one per lens exclusive rule of ``--exclusive-rows``, default the group rule; ``--no-exclusive-row``
-adds lenses that blend like all others) and without FPGO (bottom row), from one orbit view.
+adds lenses that blend like all others; ``--interior-all-row`` FPGO with a Gaussian for every
+fractured interior particle, SPEC §6.3 step 4 as written) and without FPGO (bottom row), from one
+orbit view.
 
 Usage: PYTHONPATH=. python benchmarks/frame_strip.py --sim output/sims/two_spheres \
            --frames 3 5 7 10 24 --out docs/two_spheres_fpgo.png [--size 320] [--view 0]
@@ -19,7 +21,7 @@ import numpy as np
 import torch
 
 from fracture_gs.cli.render import resolve_views
-from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES
+from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
 from fracture_gs.sim import Simulation
@@ -44,6 +46,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="one FPGO row per lens exclusive rule (render.py --exclusive)")
     parser.add_argument("--no-exclusive-row", action="store_true",
                         help="add a row: FPGO with lens Gaussians that are not exclusive")
+    parser.add_argument("--interior-all-row", action="store_true",
+                        help="add a row: FPGO with interior='all' (every fractured interior "
+                        "particle drawn, not only the exposed ones)")
     args = parser.parse_args(argv)
     sim = Simulation.open(args.sim)
     frames = [sim.select_frames(str(f))[0] for f in args.frames]
@@ -52,12 +57,16 @@ def main(argv: list[str] | None = None) -> int:
     background = torch.ones(3)
     rules = list(args.exclusive_rows) + (["none"] if args.no_exclusive_row else [])
     names = {"group": "FPGO", "all": "FPGO, global rule", "none": "FPGO, not exclusive"}
-    variants = [(names[rule], True, rule) for rule in rules] + [("no FPGO", False, "group")]
+    variants = [(names[rule], True, rule, scene) for rule in rules]
+    if args.interior_all_row:
+        every = SceneGaussians.from_simulation(sim, settings=FPGOSettings(interior="all"))
+        variants.append(("FPGO, all interior", True, "group", every))
+    variants.append(("no FPGO", False, "group", scene))
     rows = []
-    for name, fpgo, rule in variants:
+    for name, fpgo, rule, source in variants:
         tiles = []
         for index in frames:
-            gaussians = scene.frame(sim.load_frame(index), fpgo=fpgo)
+            gaussians = source.frame(sim.load_frame(index), fpgo=fpgo)
             if rule == "none":
                 gaussians = gaussians.without_exclusive()
             elif rule == "all":
