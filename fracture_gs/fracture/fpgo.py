@@ -181,7 +181,7 @@ def neighbourhoods(x: torch.Tensor, fractured: torch.Tensor, particles: Fracture
                    settings: FPGOSettings, active_objects: torch.Tensor,
                    backend: str = "auto") -> Neighbourhoods:
     """SPEC §6.3 steps 2 and 5 with the exposure test, per object flagged in ``active_objects``
-    (O,) bool, each on one hash grid (:func:`fracture_gs.fracture.spatial.fracture_neighbourhood`):
+    (O,) bool, one op each (:func:`fracture_gs.fracture.spatial.fracture_neighbourhood`):
     the small fragments, the exposed particles, the fractured particles FPGO draws (all of them
     but the hidden ones with ``interior="all"``; else those with a trained Gaussian and the
     exposed ones) and their ``k_neighbours`` nearest intact, visible neighbours within d_c."""
@@ -258,7 +258,7 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
                              minlength=len(particles.rows_by_object)) > 0).cpu()
 
     # small fragments (step 5), the exposure test, and the k nearest intact neighbours of the
-    # fractured particles FPGO draws (step 2), on one hash grid per object
+    # fractured particles FPGO draws (step 2), one op per object
     tick = time.perf_counter()
     found = neighbourhoods(x, fractured, particles, settings, active, backend)
     hidden, pair_i, pair_j = found.hidden, found.pair_i, found.pair_j

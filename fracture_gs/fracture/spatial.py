@@ -154,8 +154,9 @@ def fracture_neighbourhood(points: torch.Tensor, rest_table: torch.Tensor,
                            exposure: float, fractured: torch.Tensor, has_own: torch.Tensor,
                            k: int, all_interior: bool = False,
                            backend: str = "auto") -> FractureNeighbourhood:
-    """FPGO's neighbourhood pass over one object's points, on one hash grid (SPEC §6.3 steps
-    2 and 5 and the exposure test of :mod:`fracture_gs.fracture.fpgo`).
+    """FPGO's neighbourhood pass over one object's points (SPEC §6.3 steps 2 and 5 and the
+    exposure test of :mod:`fracture_gs.fracture.fpgo`) in one call: the compiled op builds one
+    hash grid of all the points (components) and one of the intact ones (k nearest).
 
     ``rest_table`` (N, K) int32 lists each point's neighbours at rest (indices into ``points``,
     -1 padding), ``rest_count`` (N,) int32 how many. A fractured point without an own Gaussian
