@@ -29,6 +29,16 @@ from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.sim import Simulation
 
 
+def median_sizes(gaussians) -> dict[str, float]:
+    """Median size det(Σ)^(1/6) (m) of the trained / flat Gaussians and of FPGO's interior and
+    lens Gaussians of a frame (0 where there are none)."""
+    size = torch.linalg.det(gaussians.covariances.double()).clamp_min(0.0) ** (1.0 / 6.0)
+    lens = gaussians.exclusive >= 0
+    parts = {"base": ~gaussians.is_fpgo, "interior": gaussians.is_fpgo & ~lens, "lens": lens}
+    return {name: float(size[mask].median()) if bool(mask.any()) else 0.0
+            for name, mask in parts.items()}
+
+
 def timed_frame(scene: SceneGaussians, frame, cameras, background: torch.Tensor,
                 fpgo: bool) -> dict[str, float]:
     """Milliseconds of one frame: Gaussians (incl. FPGO), raster of every camera, FPGO alone."""
@@ -123,6 +133,9 @@ def main(argv: list[str] | None = None) -> int:
                   for part in rows[0]["fpgo_detail_ms"]},
               "added_median_of_frames": summary("added")["median"],
               "added_of_means": round(fpgo["mean"] / no_fpgo["mean"] - 1.0, 3),
+              "gaussian_size_m_last_frame": {
+                  name: round(value, 6)
+                  for name, value in median_sizes(scene.frame(sim.load_frame(frames[-1]))).items()},
               "rows": rows}
     print(json.dumps(result, indent=1))
     return 0

@@ -335,10 +335,10 @@ std::tuple<Tensor, Tensor, Tensor, Tensor> fracture_neighbourhood(
   // the candidates get a grid of their own: with the fractured points left out, the k nearest
   // are found in fewer cells (for_each_nearer stops at the k-th distance)
   const Tensor candidates = fractured.logical_not().logical_and(visible).nonzero().flatten();
-  const Tensor candidate_points = points.index_select(0, candidates).contiguous();
-  const Tensor query_points = points.index_select(0, queries).contiguous();
   Tensor neighbours = torch::full({queries.size(0), k}, -1, candidates.options());
   if (candidates.size(0) > 0 && queries.size(0) > 0) {
+    const Tensor candidate_points = points.index_select(0, candidates).contiguous();
+    const Tensor query_points = points.index_select(0, queries).contiguous();
     const BuiltGrid candidate_grid = build_grid(candidate_points, radius);
     auto [found, distance] = knn_on_grid(candidate_grid, candidate_points, nullptr, query_points,
                                          nullptr, nullptr, radius, k);
