@@ -305,7 +305,8 @@ std::tuple<Tensor, Tensor, Tensor, Tensor> fracture_neighbourhood(
   const int64_t n = points.size(0);
   check_table(points, table, n);
   TORCH_CHECK(rest_count.dim() == 1 && rest_count.size(0) == n &&
-                  rest_count.scalar_type() == torch::kInt32 && rest_count.device() == points.device(),
+                  rest_count.scalar_type() == torch::kInt32 &&
+                  rest_count.device() == points.device(),
               "rest_count must be an int32 tensor of shape (", n, ",) on the points' device");
   bool_ptr(fractured, n, points, "fractured");
   bool_ptr(has_own, n, points, "has_own");

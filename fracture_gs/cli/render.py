@@ -37,8 +37,8 @@ from fracture_gs.sim.folder import Simulation, SimulationError
 
 DEFAULT_ORBIT_SIZE = (800, 800)
 TIMING_COLUMNS = ("frame", "gaussians", "fpgo_gaussians", "fractured", "hidden_particles",
-                  "buried_particles", "load_wait_ms", "deform_ms", "fpgo_ms", "raster_ms", "raster_ms_per_view",
-                  "ply_ms")
+                  "buried_particles", "load_wait_ms", "deform_ms", "fpgo_ms", "raster_ms",
+                  "raster_ms_per_view", "ply_ms")
 
 
 class InvalidInput(ValueError):

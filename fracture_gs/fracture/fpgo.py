@@ -111,7 +111,7 @@ class FractureParticles:
     centre_gaussian: torch.Tensor   # (N,) row of the own Gaussian the particle drives, else -1
     rest_neighbours: list[torch.Tensor]       # per object (Q_o, K) int32, indices into its rows
     rest_neighbour_count: list[torch.Tensor]  # per object (Q_o,) int32
-    object_slices: list[slice | None] = field(default_factory=list)  # rows as a slice, if they are one
+    object_slices: list[slice | None] = field(default_factory=list)  # rows as a slice, if one
 
 
 @dataclass
@@ -197,7 +197,8 @@ def neighbourhoods(x: torch.Tensor, fractured: torch.Tensor, particles: Fracture
         span = particles.object_slices[o] if particles.object_slices else None
         found = fracture_neighbourhood(
             _rows_of(x, rows, span), particles.rest_neighbours[o],
-            particles.rest_neighbour_count[o], settings.dc_factor * float(particles.object_spacing[o]),
+            particles.rest_neighbour_count[o],
+            settings.dc_factor * float(particles.object_spacing[o]),
             settings.min_fragment, settings.exposure, _rows_of(fractured, rows, span),
             _rows_of(has_own, rows, span), settings.k_neighbours,
             all_interior=settings.interior == "all", backend=backend)

@@ -121,7 +121,8 @@ def small_component_mask(points: torch.Tensor, group: torch.Tensor | None, radiu
 def retained_neighbours(points: torch.Tensor, rows: torch.Tensor, table: torch.Tensor,
                         radius: float) -> torch.Tensor:
     """Twin of ``spatial_retained_neighbours``: (Q,) int32 count of the table row's points
-    (-1: none) within ``radius`` of point ``rows[q]`` (float32 dx² + dy² + dz², as the kernel)."""
+    (-1: none) within ``radius`` of point ``rows[q]`` (float32 dx² + dy² + dz², as the
+    kernel)."""
     listed = table.long()
     diff = points[listed.clamp_min(0)] - points[rows][:, None, :]
     d2 = diff[..., 0] * diff[..., 0] + diff[..., 1] * diff[..., 1] + diff[..., 2] * diff[..., 2]
@@ -145,8 +146,8 @@ def fracture_neighbourhood(points: torch.Tensor, rest_table: torch.Tensor,
     queries = torch.nonzero(fractured & ~hidden & drawn).flatten()
     candidates = ~fractured & ~hidden
     group = candidates.to(torch.int32)
-    neighbours, _ = knn_within(points, group, points[queries],
-                               torch.ones(queries.shape[0], dtype=torch.int32, device=points.device),
+    query_group = torch.ones(queries.shape[0], dtype=torch.int32, device=points.device)
+    neighbours, _ = knn_within(points, group, points[queries], query_group,
                                queries.to(torch.int32), radius, k)
     return hidden, exposed, queries, neighbours
 

@@ -366,7 +366,8 @@ class SceneGaussians:
         arrays = _fracture_arrays(sim, tables, coefficients, settings.interpolation_k)
         rotations = np.stack([_object_transform(obj)[0] for obj in sim.scene.objects])
         obj_id = sim.particles.obj_id
-        rows_by_object = [tensor(np.nonzero(obj_id == o)[0], torch.int64) for o in range(len(tables))]
+        rows_by_object = [tensor(np.nonzero(obj_id == o)[0], torch.int64)
+                          for o in range(len(tables))]
         rest_neighbours, rest_counts = rest_neighbour_tables(
             tensor(sim.particles.rest_x, torch.float32), rows_by_object,
             [settings.dc_factor * t.spacing for t in tables])
