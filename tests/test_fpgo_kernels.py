@@ -249,14 +249,20 @@ def cracked_block() -> dict[str, torch.Tensor]:
             "lattice": lattice, "crumb": crumb}
 
 
+def block_rest_table(block: dict[str, torch.Tensor],
+                     radius: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """The block's rest-neighbour table (20 per point) and each row's count."""
+    table = rest_table(block["rest"], radius, k=20)
+    return table, (table >= 0).sum(1).to(torch.int32)
+
+
 @needs_cpp
 @pytest.mark.parametrize("device", KERNEL_DEVICES)
 @pytest.mark.parametrize("all_interior", [False, True])
 def test_fracture_neighbourhood_kernel_equals_twin(device, all_interior):
     block = cracked_block()
     radius = 1.5
-    table = rest_table(block["rest"], radius, k=20)
-    count = (table >= 0).sum(1).to(torch.int32)
+    table, count = block_rest_table(block, radius)
     args = (table, count, radius, 10, 0.8, block["fractured"], block["has_own"], 2)
     on_device = [a.to(device) if isinstance(a, torch.Tensor) else a for a in args]
     kernel = fracture_neighbourhood(block["x"].to(device), *on_device, all_interior=all_interior,
@@ -284,6 +290,43 @@ def test_fracture_neighbourhood_kernel_equals_twin(device, all_interior):
     assert not block["fractured"][partners].any() and not hidden[partners].any()
     gaps = (block["x"][partners] - block["x"][queries[:, None].expand_as(neighbours)[found]]).norm(dim=1)
     assert (gaps <= radius + 1e-5).all()
+
+
+@needs_cpp
+def test_fracture_neighbourhood_where_every_point_keeps_its_neighbours():
+    # min_size 5: every point of the block keeps at least 4 of its rest neighbours (the fewest
+    # keep 5), so the hint names all of them and the op skips the small-fragment search; with the
+    # crumb thrown off (a line of 4 points, 1-2 neighbours each) it must run it
+    block = cracked_block()
+    radius = 1.5
+    table, count = block_rest_table(block, radius)
+    intact_crumb = block["x"].clone()
+    intact_crumb[block["crumb"]] = block["rest"][block["crumb"]]   # the crumb not thrown off
+    for x, hidden_expected in ((intact_crumb, torch.zeros_like(block["crumb"])),
+                               (block["x"], block["crumb"])):
+        args = (table, count, radius, 5, 0.8, block["fractured"], block["has_own"], 2)
+        kernel = fracture_neighbourhood(x, *args, backend="cpp")
+        twin = fracture_neighbourhood(x, *args, backend="reference")
+        for name, got, want in zip(kernel._fields, kernel, twin):
+            assert torch.equal(got, want), name
+        assert torch.equal(kernel.hidden, hidden_expected)
+
+
+@needs_cpp
+def test_rest_table_entries_that_index_no_point_are_errors():
+    block = cracked_block()
+    radius = 1.5
+    table, count = block_rest_table(block, radius)
+    n = block["x"].shape[0]
+    rows = torch.arange(n)
+    for bad in (n, -2):
+        broken = table.clone()
+        broken[7, 0] = bad       # the first entry of a row is always read
+        with pytest.raises(RuntimeError, match="table entries must be -1 or index points"):
+            retained_neighbours(block["x"], rows, broken, radius, backend="cpp")
+        with pytest.raises(RuntimeError, match="table entries must be -1 or index points"):
+            fracture_neighbourhood(block["x"], broken, count, radius, 10, 0.8, block["fractured"],
+                                   block["has_own"], 2, backend="cpp")
 
 
 def random_deformations(count: int, seed: int) -> torch.Tensor:

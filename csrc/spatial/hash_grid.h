@@ -64,12 +64,18 @@ HOST_DEVICE inline float distance2(const float* a, const float* b) {
 // still within radius of point i now (|x_i - x_j|^2 <= radius2, the distance2 of the grid
 // queries) is a lower bound of i's neighbour count, and the share of them kept measures how
 // far the neighbourhood has opened since.
-// The count stops once it reaches `stop_at` (pass k or more for the full count).
-HOST_DEVICE inline int32_t retained_count(const float* points, int64_t i, const int32_t* row,
-                                          int k, float radius2, int32_t stop_at) {
+// The count stops once it reaches `stop_at` (pass k or more for the full count). Every entry
+// the count reads is checked against the num_points points (-1 or 0 .. num_points - 1): one
+// that is not gives kInvalidTableEntry, and is never dereferenced.
+constexpr int32_t kInvalidTableEntry = -1;
+
+HOST_DEVICE inline int32_t retained_count(const float* points, int64_t num_points, int64_t i,
+                                          const int32_t* row, int k, float radius2,
+                                          int32_t stop_at) {
   int32_t kept = 0;
   for (int n = 0; n < k && kept < stop_at; ++n) {
     const int32_t j = row[n];
+    if (j < -1 || j >= num_points) return kInvalidTableEntry;
     if (j >= 0 && distance2(points + 3 * (int64_t)i, points + 3 * (int64_t)j) <= radius2) ++kept;
   }
   return kept;

@@ -184,27 +184,21 @@ Tensor small_mask_on_grid(const BuiltGrid& built, const Tensor& points, const in
                           double radius, int64_t min_size, const uint8_t* hint) {
   const int64_t n = points.size(0);
   const auto iopt = points.options().dtype(torch::kInt32);
-  Tensor parent = torch::empty({n}, iopt), labels = torch::empty({n}, iopt);
+  Tensor parent = torch::empty({n}, iopt);
   Tensor core = torch::empty({n}, points.options().dtype(torch::kUInt8));
-  const int32_t cap = (int32_t)(min_size - 1);
-  if (points.is_cuda()) {
-#ifdef FGS_WITH_CUDA
-    spatial::small_components_cuda(built.grid, gp, n, (float)radius, cap, hint,
-                                   parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
-                                   labels.data_ptr<int32_t>(), current_cuda_stream());
-#endif
-  } else {
-    spatial::small_components_cpu(built.grid, gp, n, (float)radius, cap, hint,
-                                  parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
-                                  labels.data_ptr<int32_t>());
-  }
-  if (!points.is_cuda()) {
+  if (!points.is_cuda()) {  // over the non-core points only (spatial_kernels.h)
     Tensor mask = torch::empty({n}, points.options().dtype(torch::kBool));
-    spatial::small_mask_from_labels_cpu(n, labels.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
-                                        (int32_t)min_size, parent.data_ptr<int32_t>(),
-                                        reinterpret_cast<uint8_t*>(mask.data_ptr<bool>()));
+    spatial::small_mask_cpu(built.grid, gp, n, (float)radius, (int32_t)min_size, hint,
+                            parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
+                            reinterpret_cast<uint8_t*>(mask.data_ptr<bool>()));
     return mask;
   }
+  Tensor labels = torch::empty({n}, iopt);
+#ifdef FGS_WITH_CUDA
+  spatial::small_components_cuda(built.grid, gp, n, (float)radius, (int32_t)(min_size - 1), hint,
+                                 parent.data_ptr<int32_t>(), core.data_ptr<uint8_t>(),
+                                 labels.data_ptr<int32_t>(), current_cuda_stream());
+#endif
   const Tensor label = labels.to(torch::kInt64);
   const Tensor is_core = core.to(torch::kBool);
   const Tensor cores = torch::zeros({n}, iopt).index_add_(0, label, core.to(torch::kInt32));
@@ -232,25 +226,31 @@ Tensor small_component_mask(const Tensor& points, const OptTensor& group, double
 }
 
 // kept (Q,) int32 of the retained kernels; rows null: query q is point q; full null: every
-// count is complete, else only where full[q] (the others stop at stop_at).
+// count is complete, else only where full[q] (the others stop at stop_at). The kernels check
+// every table entry they read (the others are never dereferenced): one that is neither -1 nor
+// a point index is an error here. Checking the read entries instead of the whole table spares
+// FPGO a min / max pass over a table that was checked when it was built.
 Tensor retained_counts(const Tensor& points, const int64_t* rows, const Tensor& table,
                        double radius, const uint8_t* full = nullptr, int32_t stop_at = 0) {
-  const int64_t q = table.size(0);
+  const int64_t q = table.size(0), n = points.size(0);
   Tensor kept = torch::empty({q}, points.options().dtype(torch::kInt32));
   const int k = (int)table.size(1);
   if (points.is_cuda()) {
 #ifdef FGS_WITH_CUDA
-    spatial::retained_neighbours_cuda(points.data_ptr<float>(), q, rows,
+    spatial::retained_neighbours_cuda(points.data_ptr<float>(), n, q, rows,
                                       table.data_ptr<int32_t>(), k, (float)radius, full, stop_at,
                                       kept.data_ptr<int32_t>(), current_cuda_stream());
 #else
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
   } else {
-    spatial::retained_neighbours_cpu(points.data_ptr<float>(), q, rows,
+    spatial::retained_neighbours_cpu(points.data_ptr<float>(), n, q, rows,
                                      table.data_ptr<int32_t>(), k, (float)radius, full, stop_at,
                                      kept.data_ptr<int32_t>());
   }
+  if (q > 0)
+    TORCH_CHECK(kept.min().item<int32_t>() != spatial::kInvalidTableEntry,
+                "table entries must be -1 or index points (0..", n - 1, ")");
   return kept;
 }
 
@@ -260,10 +260,6 @@ void check_table(const Tensor& points, const Tensor& table, int64_t rows_expecte
               "table must be a contiguous int32 tensor of shape (", rows_expected, ", k)");
   TORCH_CHECK(table.device() == points.device(), "table is on ", table.device(), ", points on ",
               points.device());
-  const int64_t n = points.size(0);
-  if (table.numel() > 0)
-    TORCH_CHECK(table.min().item<int32_t>() >= -1 && table.max().item<int32_t>() < n,
-                "table entries must be -1 or index points (0..", n - 1, ")");
 }
 
 // kept (Q,) int32: how many of table[q]'s points (int32, -1 padding) lie within radius of point
@@ -323,11 +319,15 @@ std::tuple<Tensor, Tensor, Tensor, Tensor> fracture_neighbourhood(
   if (n == 0)
     return {hidden, exposed, torch::empty({0}, points.options().dtype(torch::kInt64)),
             torch::empty({0, k}, points.options().dtype(torch::kInt64))};
-  const BuiltGrid built = build_grid(points, radius);
   if (min_size > 1) {
+    // a point with min_size - 1 retained rest neighbours is core; where the hint names every
+    // point, no fragment is small and the grid of all the points is not needed
     const Tensor known_core = kept.ge(min_size - 1).contiguous();
-    hidden = small_mask_on_grid(built, points, nullptr, radius, min_size,
-                                reinterpret_cast<const uint8_t*>(known_core.data_ptr<bool>()));
+    if (!known_core.all().item<bool>()) {
+      const BuiltGrid built = build_grid(points, radius);
+      hidden = small_mask_on_grid(built, points, nullptr, radius, min_size,
+                                  reinterpret_cast<const uint8_t*>(known_core.data_ptr<bool>()));
+    }
   }
   const Tensor visible = hidden.logical_not();
   Tensor drawn = has_own.logical_or(exposed);

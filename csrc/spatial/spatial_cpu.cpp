@@ -5,6 +5,7 @@
 // labels every component by its smallest index whatever order the unions run in.
 #include <atomic>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <vector>
 
@@ -90,59 +91,73 @@ void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points,
   for (int64_t i = 0; i < num_points; ++i) labels[i] = uf_find(parent, (int32_t)i, ops);
 }
 
-void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
-                          int32_t cap, const uint8_t* known_core, int32_t* parent, uint8_t* core,
-                          int32_t* labels) {
+void small_mask_cpu(const HashGrid& g, const int32_t* group,
+                    int64_t num_points, float radius, int32_t min_size, const uint8_t* known_core,
+                    int32_t* scratch, uint8_t* core, uint8_t* mask) {
   const float radius2 = radius * radius;
+  const int32_t cap = min_size - 1;
   CpuAtomicOps ops;
+  // the sorted slots of the points whose count is needed, those the hint does not name (bucket
+  // order: neighbouring queries read the same cells)
+  if (known_core != nullptr) std::memcpy(core, known_core, (size_t)num_points);
+  else std::memset(core, 0, (size_t)num_points);
+  std::vector<int64_t> counted;
+  for (int64_t s = 0; s < num_points; ++s)
+    if (!core[g.sorted_point[s]]) counted.push_back(s);
+  const int64_t n_counted = (int64_t)counted.size();
 #pragma omp parallel for schedule(dynamic, 256)
-  for (int64_t s = 0; s < num_points; ++s) {  // bucket order: neighbouring queries share cells
-    const int32_t i = g.sorted_point[s];
-    parent[i] = i;
-    if (known_core != nullptr && known_core[i]) {
-      core[i] = 1;
-      continue;
-    }
+  for (int64_t t = 0; t < n_counted; ++t) {
+    const int32_t i = g.sorted_point[counted[t]];
     CapCountVisit count{group, i, cap};
-    for_each_within(g, g.sorted_xyz + 3 * s, radius2, count);
+    for_each_within(g, g.sorted_xyz + 3 * counted[t], radius2, count);
     core[i] = count.count >= cap ? 1 : 0;
   }
+  std::vector<int64_t> loose;  // sorted slots of the non-core points
+  for (const int64_t s : counted)
+    if (!core[g.sorted_point[s]]) loose.push_back(s);
+  const int64_t n_loose = (int64_t)loose.size();
+  std::memset(mask, 0, (size_t)num_points);
+  if (n_loose == 0) return;
+  // union-find over the non-core points only (scratch: their parents); a neighbour that is core
+  // anchors the point, and with it its component, which is then not small
+  std::vector<uint8_t> anchored(n_loose, 0);
+  for (const int64_t s : loose) scratch[g.sorted_point[s]] = g.sorted_point[s];
 #pragma omp parallel for schedule(dynamic, 256)
-  for (int64_t s = 0; s < num_points; ++s) {
-    const int32_t i = g.sorted_point[s];
-    if (core[i]) continue;
-    UniteVisit<CpuAtomicOps> visit{parent, group, i, &ops};
-    for_each_within(g, g.sorted_xyz + 3 * s, radius2, visit);
+  for (int64_t t = 0; t < n_loose; ++t) {
+    const int32_t i = g.sorted_point[loose[t]];
+    auto visit = [&](int32_t j, float) {
+      if (j == i || (group != nullptr && group[j] != group[i])) return;
+      if (core[j]) anchored[t] = 1;
+      else uf_unite(scratch, i, j, ops);
+    };
+    for_each_within(g, g.sorted_xyz + 3 * loose[t], radius2, visit);
   }
+  std::vector<int32_t> root(n_loose);
 #pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < num_points; ++i) labels[i] = uf_find(parent, (int32_t)i, ops);
-}
-
-void small_mask_from_labels_cpu(int64_t num_points, const int32_t* labels, const uint8_t* core,
-                                int32_t min_size, int32_t* scratch, uint8_t* mask) {
-  // scratch[root]: points of the component so far, or -1 once a core point is in it; two
-  // serial passes (a few hundred microseconds for 1e5 points, no atomics)
-  for (int64_t i = 0; i < num_points; ++i) scratch[i] = 0;
-  for (int64_t i = 0; i < num_points; ++i) {
-    int32_t& slot = scratch[labels[i]];
-    if (core[i]) slot = -1;
+  for (int64_t t = 0; t < n_loose; ++t) root[t] = uf_find(scratch, g.sorted_point[loose[t]], ops);
+  // per root (a non-core point): its points, or -1 once one of them is anchored; the parents
+  // are no longer needed, so scratch holds these counts
+  for (int64_t t = 0; t < n_loose; ++t) scratch[root[t]] = 0;
+  for (int64_t t = 0; t < n_loose; ++t) {
+    int32_t& slot = scratch[root[t]];
+    if (anchored[t]) slot = -1;
     else if (slot >= 0) ++slot;
   }
-#pragma omp parallel for schedule(static) if (num_points >= 65536)
-  for (int64_t i = 0; i < num_points; ++i) {
-    const int32_t count = scratch[labels[i]];
-    mask[i] = (!core[i] && count >= 0 && count < min_size) ? 1 : 0;
+  for (int64_t t = 0; t < n_loose; ++t) {
+    const int32_t size = scratch[root[t]];
+    mask[g.sorted_point[loose[t]]] = size >= 0 && size < min_size ? 1 : 0;
   }
 }
 
-void retained_neighbours_cpu(const float* points, int64_t num_queries, const int64_t* rows,
-                             const int32_t* table, int k, float radius, const uint8_t* full,
-                             int32_t stop_at, int32_t* kept) {
+void retained_neighbours_cpu(const float* points, int64_t num_points, int64_t num_queries,
+                             const int64_t* rows, const int32_t* table, int k, float radius,
+                             const uint8_t* full, int32_t stop_at, int32_t* kept) {
   const float radius2 = radius * radius;
 #pragma omp parallel for schedule(static) if (num_queries >= 4096)
   for (int64_t q = 0; q < num_queries; ++q)
-    kept[q] = retained_count(points, rows != nullptr ? rows[q] : q, table + (int64_t)k * q, k,
-                             radius2, full == nullptr || full[q] ? k : stop_at);
+    kept[q] = retained_count(points, num_points, rows != nullptr ? rows[q] : q,
+                             table + (int64_t)k * q, k, radius2,
+                             full == nullptr || full[q] ? k : stop_at);
 }
 
 }  // namespace spatial

@@ -108,13 +108,15 @@ __global__ void unite_non_core_kernel(HashGrid g, const int32_t* group, int64_t 
   for_each_within(g, g.sorted_xyz + 3 * s, radius * radius, visit);
 }
 
-__global__ void retained_kernel(const float* points, int64_t num_queries, const int64_t* rows,
+__global__ void retained_kernel(const float* points, int64_t num_points, int64_t num_queries,
+                                const int64_t* rows,
                                 const int32_t* table, int k, float radius2, const uint8_t* full,
                                 int32_t stop_at, int32_t* kept) {
   const int64_t q = (int64_t)blockIdx.x * blockDim.x + threadIdx.x;
   if (q >= num_queries) return;
-  kept[q] = retained_count(points, rows != nullptr ? rows[q] : q, table + (int64_t)k * q, k,
-                             radius2, full == nullptr || full[q] ? k : stop_at);
+  kept[q] = retained_count(points, num_points, rows != nullptr ? rows[q] : q,
+                           table + (int64_t)k * q, k, radius2,
+                           full == nullptr || full[q] ? k : stop_at);
 }
 
 }  // namespace
@@ -157,12 +159,12 @@ void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_
   label_kernel<<<blocks_for(num_points), kThreads, 0, s>>>(num_points, parent, labels);
 }
 
-void retained_neighbours_cuda(const float* points, int64_t num_queries, const int64_t* rows,
-                              const int32_t* table, int k, float radius, const uint8_t* full,
-                              int32_t stop_at, int32_t* kept, void* stream) {
+void retained_neighbours_cuda(const float* points, int64_t num_points, int64_t num_queries,
+                              const int64_t* rows, const int32_t* table, int k, float radius,
+                              const uint8_t* full, int32_t stop_at, int32_t* kept, void* stream) {
   if (num_queries == 0) return;
   retained_kernel<<<blocks_for(num_queries), kThreads, 0, (cudaStream_t)stream>>>(
-      points, num_queries, rows, table, k, radius * radius, full, stop_at, kept);
+      points, num_points, num_queries, rows, table, k, radius * radius, full, stop_at, kept);
 }
 
 }  // namespace spatial

@@ -27,28 +27,22 @@ void knn_within_cpu(const HashGrid& g, const int32_t* point_group,
 // same set.
 void components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
                     int32_t* parent, int32_t* labels);
-// Small fragments without the full component labelling: core (N) = 1 where a point has at least
-// `cap` neighbours (counting stops there), then non-core points are united with all their
-// neighbours; labels (N) = the root of each point in that partial union-find. A point lies in a
-// component of fewer than cap + 1 points iff it is not core and no core point shares its label
-// (the binding turns this into the mask). parent (N) is scratch.
-// `known_core` (N, may be null): points the caller knows to have at least `cap` neighbours
-// (e.g. from retained_neighbours_cpu); their count is not taken. Only a hint: the result is
-// the same with or without it, as long as it names true core points only.
-void small_components_cpu(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
-                          int32_t cap, const uint8_t* known_core, int32_t* parent, uint8_t* core,
-                          int32_t* labels);
-// mask (N) = 1 where a point is not core, no core point shares its label and fewer than
-// min_size points do: the small-fragment mask from small_components_cpu's labels and core;
-// scratch (N) is overwritten (it may be small_components_cpu's parent buffer).
-void small_mask_from_labels_cpu(int64_t num_points, const int32_t* labels, const uint8_t* core,
-                                int32_t min_size, int32_t* scratch, uint8_t* mask);
+// mask (N) = 1 where a point lies in a component (edges: distance <= radius, same group) of
+// fewer than min_size points, found without labelling the large bodies: a point is core when
+// known_core names it (may be null; only a hint, it must name true core points only: at least
+// min_size - 1 neighbours, e.g. from retained_neighbours_cpu) or its count, which stops there,
+// reaches min_size - 1. Only the other points are united, among themselves; one with a core
+// neighbour anchors its component, which is then not small. scratch (N) int32 and core (N) are
+// overwritten (of scratch only the non-core points' entries).
+void small_mask_cpu(const HashGrid& g, const int32_t* group,
+                    int64_t num_points, float radius, int32_t min_size, const uint8_t* known_core,
+                    int32_t* scratch, uint8_t* core, uint8_t* mask);
 // kept (Q) = retained_count (hash_grid.h) of point rows[q] (q itself when rows is null) against
-// table row q (Q, k): the full count where full[q] (or full is null), else stopped at stop_at.
-void retained_neighbours_cpu(const float* points, int64_t num_queries, const int64_t* rows,
-                             const int32_t* table, int k, float radius, const uint8_t* full,
-                             int32_t stop_at, int32_t* kept);
-
+// table row q (Q, k): the full count where full[q] (or full is null), else stopped at stop_at;
+// kInvalidTableEntry where an entry it read does not index the num_points points.
+void retained_neighbours_cpu(const float* points, int64_t num_points, int64_t num_queries,
+                             const int64_t* rows, const int32_t* table, int k, float radius,
+                             const uint8_t* full, int32_t stop_at, int32_t* kept);
 // ---- CUDA (raw device pointers; stream is a cudaStream_t passed as void*) ---------------
 #ifdef FGS_WITH_CUDA
 // keys[i] = bucket << 32 | i (sorted by the binding), cells[i] = cell_key of point i.
@@ -60,12 +54,16 @@ void knn_within_cuda(const HashGrid& g, const int32_t* point_group,
                      float* out_distance, void* stream);
 void components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points, float radius,
                      int32_t* parent, int32_t* labels, void* stream);
+// The CUDA form of small_mask_cpu in two steps: core (N) as there, non-core points united with
+// all their neighbours (core ones included), labels (N) = each point's root in that partial
+// union-find (parent (N) is scratch); the binding keeps the non-core points of labels without a
+// core point and of fewer than min_size points (cap = min_size - 1).
 void small_components_cuda(const HashGrid& g, const int32_t* group, int64_t num_points,
                            float radius, int32_t cap, const uint8_t* known_core, int32_t* parent,
                            uint8_t* core, int32_t* labels, void* stream);
-void retained_neighbours_cuda(const float* points, int64_t num_queries, const int64_t* rows,
-                              const int32_t* table, int k, float radius, const uint8_t* full,
-                              int32_t stop_at, int32_t* kept, void* stream);
+void retained_neighbours_cuda(const float* points, int64_t num_points, int64_t num_queries,
+                              const int64_t* rows, const int32_t* table, int k, float radius,
+                              const uint8_t* full, int32_t stop_at, int32_t* kept, void* stream);
 #endif
 
 }  // namespace spatial
