@@ -108,9 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     for index in frames:
         frame = sim.load_frame(index)
         active = torch.ones(len(fracture.rows_by_object), dtype=torch.bool)
-        hidden = small_fragment_mask(frame.x, fracture, settings, active)
-        if args.silhouette == "all":
-            hidden = torch.zeros_like(hidden)
+        hidden = (small_fragment_mask(frame.x, fracture, settings, active)
+                  if args.silhouette == "drawn" else torch.zeros(frame.x.shape[0], dtype=torch.bool))
         fpgo = scene.frame(frame, fpgo=True)
         baseline = scene.frame(frame, fpgo=False)
         rendered = {"fpgo": fpgo, "no_fpgo": baseline.select(~hidden[baseline.particle]),
@@ -156,13 +155,13 @@ def main(argv: list[str] | None = None) -> int:
               f"({row['hole_fraction_fpgo_no_exclusive']:.5f} lenses not exclusive), "
               f"{row['hole_fraction_no_fpgo']:.5f} without", file=sys.stderr)
     rows = result["frames"]
+    after = [r for r in rows if r["frame"] > onset]
     for label in ("fpgo", "fpgo_no_exclusive"):
         for prefix in ("", "band_"):
             key = f"{prefix}hole_fraction_{label}"
             base = f"{prefix}hole_fraction_no_fpgo"
             result[f"{prefix}frames_lower_{label}"] = sum(r[key] < r[base] for r in rows)
             result[f"{prefix}frames_higher_{label}"] = sum(r[key] > r[base] for r in rows)
-            after = [r for r in rows if r["frame"] > onset]
             result[f"{prefix}frames_after_onset_lower_{label}"] = [
                 sum(r[key] < r[base] for r in after), len(after)]
     for label in labels:
