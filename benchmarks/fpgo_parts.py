@@ -64,12 +64,30 @@ def frame_variants(scene: SceneGaussians, frame) -> dict[str, FrameGaussians]:
             "lenses_keep_replaced": joined(without, with_fpgo.select(lenses))}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_window_arguments(parser: argparse.ArgumentParser) -> None:
+    """--sim, --views, --size, --window: the simulation and the protocol's views and window."""
     parser.add_argument("--sim", type=Path, required=True)
     parser.add_argument("--views", type=int, default=8)
     parser.add_argument("--size", type=int, default=400)
     parser.add_argument("--window", type=int, default=5)
+
+
+def open_window(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """(simulation, fracture window, orbit views) of ``args``; a one-line error exit otherwise."""
+    try:
+        sim = open_simulation(args.sim)
+        window = fracture_window_from_simulation(args.sim, args.window)
+        views = evaluation_views(sim, f"orbit:{args.views}", (args.size, args.size))
+    except (EvaluationError, ValueError, TypeError, FileNotFoundError) as error:
+        parser.exit(2, f"error: {error}\n")
+    if not window.usable:
+        parser.exit(2, f"error: {args.sim}: no usable fracture window ({window.note})\n")
+    return sim, window, views
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    add_window_arguments(parser)
     parser.add_argument("--fpgo", default="{}", help="JSON object of FPGOSettings fields")
     parser.add_argument("--weights-dir", type=Path, default=None)
     args = parser.parse_args()
@@ -81,13 +99,9 @@ def main() -> None:
         parser.exit(2, f"error: --fpgo must be a JSON object of FPGOSettings fields, got {args.fpgo!r}\n")
     try:
         settings = FPGOSettings(**overrides)
-        sim = open_simulation(args.sim)
-        window = fracture_window_from_simulation(args.sim, args.window)
-        views = evaluation_views(sim, f"orbit:{args.views}", (args.size, args.size))
-    except (EvaluationError, ValueError, TypeError, FileNotFoundError) as error:
+    except (ValueError, TypeError) as error:
         parser.exit(2, f"error: {error}\n")
-    if not window.usable:
-        parser.exit(2, f"error: {args.sim}: no usable fracture window ({window.note})\n")
+    sim, window, views = open_window(parser, args)
     device = torch.device("cpu")
     scene = SceneGaussians.from_simulation(sim, device, settings)
     background = torch.ones(3, device=device)

@@ -55,3 +55,21 @@ def test_demo_bad_options_are_one_line(tmp_path: Path) -> None:
         assert result.returncode == 2
         lines = result.stderr.strip().splitlines()
         assert len(lines) == 1 and needle in lines[0], result.stderr
+
+
+def test_demo_names_a_kept_dataset_made_at_other_sizes(tmp_path: Path) -> None:
+    """A dataset left in the data folder is kept, but one made at other image sizes or view
+    counts than the profile's is named as such (it trains a different model than the README's)."""
+    from fracture_gs.cli.demo import PROFILES, _dataset_mismatch
+
+    profile = PROFILES["default"]
+    settings = {"width": profile.image_size, "height": profile.image_size, "n_train": profile.n_train,
+                "n_test": profile.n_test, "spp": profile.spp, "seed": 0, "resolution": profile.mesh_grid}
+    (tmp_path / "generator.json").write_text(json.dumps({"settings": settings}))
+    assert _dataset_mismatch(tmp_path, profile) == ""
+    (tmp_path / "generator.json").write_text(json.dumps({"settings": dict(settings, width=400, height=400,
+                                                                         n_train=100)}))
+    note = _dataset_mismatch(tmp_path, profile)
+    assert "400x400 with 100 + 8 views" in note and f"{profile.image_size}x{profile.image_size}" in note
+    (tmp_path / "generator.json").unlink()
+    assert "no generator.json" in _dataset_mismatch(tmp_path, profile)

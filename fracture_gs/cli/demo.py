@@ -190,6 +190,23 @@ def _require_success(function: Callable[[], int], what: str) -> None:
         raise EvaluationError(f"{what} failed with exit status {status} (see above)")
 
 
+def _dataset_mismatch(folder: Path, profile: Profile) -> str:
+    """'' when the dataset in ``folder`` was made with the profile's image size and view counts
+    (its generator.json), else a note of how it differs: the demo's figures in the README are for
+    datasets the demo made itself, and a larger one trains a different model."""
+    try:
+        made = json.loads((folder / "generator.json").read_text())["settings"]
+        found = (made["width"], made["height"], made["n_train"], made["n_test"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return " (no generator.json: not made by the generator, so the results will differ from the README's)"
+    wanted = (profile.image_size, profile.image_size, profile.n_train, profile.n_test)
+    if found == wanted:
+        return ""
+    return (f" (made at {found[0]}x{found[1]} with {found[2]} + {found[3]} views, not the profile's "
+            f"{wanted[0]}x{wanted[1]} with {wanted[2]} + {wanted[3]}: the results will differ from the "
+            f"README's; --data DIR or --force makes the profile's)")
+
+
 def stage_data(demo: Demo) -> None:
     from fracture_gs.data.synthetic.__main__ import main as synthetic_main
 
@@ -197,7 +214,7 @@ def stage_data(demo: Demo) -> None:
     for name in OBJECTS:
         folder = demo.data / name
         if (folder / "transforms_train.json").is_file() and not demo.force:
-            print(f"[demo] data: {folder} exists, kept")
+            print(f"[demo] data: {folder} exists, kept{_dataset_mismatch(folder, p)}")
             continue
         argv = ["--object", name, "--out", str(folder), "--width", str(p.image_size),
                 "--height", str(p.image_size), "--n-train", str(p.n_train), "--n-test",
