@@ -85,7 +85,9 @@ def knn_within(points: torch.Tensor, point_group: torch.Tensor | None, queries: 
     distance = torch.full((queries.shape[0], k), float("inf"), dtype=points.dtype,
                           device=points.device)
     index[qi[take], rank[take]] = pj[take]
-    distance[qi[take], rank[take]] = torch.sqrt(d2[take])
+    # the square root in float64, rounded once: the correctly rounded float32 root, as the
+    # kernels' std::sqrt / sqrtf give it (torch's float32 sqrt is 1 ulp off on some CPUs)
+    distance[qi[take], rank[take]] = torch.sqrt(d2[take].double()).to(distance.dtype)
     return index, distance
 
 
