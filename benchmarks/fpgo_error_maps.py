@@ -114,7 +114,7 @@ def main() -> None:
     margin = int(round(args.size * (1 - args.crop) / 2))
     crop = slice(margin, args.size - margin)
     with torch.no_grad():
-        reference_gaussians = frame_variants(scene, sim.load_frame(window.reference_frame, device))["no_fpgo"]
+        reference_gaussians = scene.frame(sim.load_frame(window.reference_frame, device), fpgo=False)
         references = [reference_gaussians.rasterize(view.camera, background) for view in views]
         for frame in window.window_frames:
             variants = frame_variants(scene, sim.load_frame(frame, device))

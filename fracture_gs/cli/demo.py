@@ -194,8 +194,10 @@ def _dataset_mismatch(folder: Path, profile: Profile) -> str:
     """'' when the dataset in ``folder`` was made with the profile's image size and view counts
     (its generator.json), else a note of how it differs: the demo's figures in the README are for
     datasets the demo made itself, and a larger one trains a different model."""
+    from fracture_gs.data.synthetic.generator import GENERATOR_FILE
+
     try:
-        made = json.loads((folder / "generator.json").read_text())["settings"]
+        made = json.loads((folder / GENERATOR_FILE).read_text())["settings"]
         found = (made["width"], made["height"], made["n_train"], made["n_test"])
     except (OSError, ValueError, KeyError, TypeError):
         return " (no generator.json: not made by the generator, so the results will differ from the README's)"
