@@ -99,6 +99,12 @@ def main() -> None:
     parser.add_argument("--crop", type=float, default=1.0, help="central share of each picture drawn")
     parser.add_argument("--scale", type=float, default=0.05, help="|Δ| drawn at full colour")
     args = parser.parse_args()
+    if not 0.0 < args.crop <= 1.0:
+        parser.exit(2, f"error: --crop must be in (0, 1], got {args.crop}\n")
+    if not args.scale > 0.0:
+        parser.exit(2, f"error: --scale must be > 0, got {args.scale}\n")
+    if args.out is not None and not args.out.parent.resolve().is_dir():
+        parser.exit(2, f"error: --out {args.out}: folder {args.out.parent} does not exist\n")
     sim, window, views = open_window(parser, args)
     shown_frames = args.show_frames or [window.window_frames[0], window.window_frames[len(window.window_frames) // 2],
                                         window.window_frames[-1]]
