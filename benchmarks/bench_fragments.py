@@ -4,8 +4,8 @@
 
 1. Block drops (0.2 m cube, 8 particles per cell, on the ground): the issue's weak block
    (E = 1e4, ρ = 100, α0 = −0.01) at 6 and 12 m/s and the tests' setting (E = 1e5, ρ = 1000,
-   β = 0.3, 3.5 m/s), each with ``fragments`` true and false; the weak block with α0 = −5 and an
-   elastic block, with fragments. Reported: fractured share, the pieces (connected components
+   β = 0.3, 3.5 m/s), each with ``fragments`` true and false; the tests' block with E and ρ divided
+   by 10 (same E/ρ, same dynamics), the weak block with α0 = −5 and an elastic block, with fragments. Reported: fractured share, the pieces (connected components
    linking particles closer than 1.5 x their spacing) with >= 2 % of the particles and their
    sizes, the largest pieces, the energy peak relative to the start.
 2. Momentum: two NACC spheres colliding without gravity or walls, fragments on.
@@ -15,6 +15,9 @@
 ``--speed-factors 0.98 0.99 1 1.01 1.02`` runs the chosen block scenes (``--only``) at these
 multiples of their drop speed instead, fragments on, to show how much the piece count depends on
 the exact speed (the weak block's small corner pieces at 6 m/s sit near the 2 % line).
+``--speeds 3.5 3.9 4.0 4.2`` runs the chosen block scenes at these speeds (m/s) with each of their
+``fragments`` settings, to find the speed from which a block breaks apart with and without the
+partition.
 """
 from __future__ import annotations
 
@@ -36,6 +39,9 @@ BLOCKS = {  # name: (speed, E, density, alpha0 (None: elastic), beta, fragments 
     "block_weak_6": (6.0, 1e4, 100.0, -0.01, 0.5, (True, False)),
     "block_weak_12": (12.0, 1e4, 100.0, -0.01, 0.5, (True, False)),
     "block_test_3.5": (3.5, 1e5, 1000.0, -0.01, 0.3, (True, False)),
+    # The tests' block with E and ρ both divided by 10 (the weak block's E and ρ): the same E/ρ, so
+    # the same dynamics up to rounding; it shows the tests' block is the weak block with β = 0.3.
+    "block_test_tenth_3.5": (3.5, 1e4, 100.0, -0.01, 0.3, (True,)),
     "block_strong_6": (6.0, 1e4, 100.0, -5.0, 0.5, (True,)),
     "block_elastic_6": (6.0, 1e4, 100.0, None, 0.5, (True,)),
 }
@@ -67,7 +73,7 @@ def block_result(name: str, fragments: bool, grid: int, duration: float, speed_f
     sizes = fragment_sizes(solver.fragment_ids())
     n = len(solver.particles)
     pieces = [s for s in sizes if s >= PIECE_SHARE * n]
-    out.update(scene=name, fragments=fragments, particles=n, speed=round(speed, 6), E=E, density=density, alpha0=alpha0,
+    out.update(scene=name, fragments=fragments, particles=n, speed=round(speed, 6), E=E, density=density, alpha0=alpha0, beta=beta,
                fractured=round(float(solver.state.fractured.float().mean()), 4),
                pieces_2pct=len(pieces), piece_sizes_2pct=pieces, largest_pieces=sizes[:8],
                components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]))
@@ -102,7 +108,13 @@ def main() -> None:
                         help="scene names to run (block names, 'momentum', 'bar'); default all")
     parser.add_argument("--speed-factors", type=float, nargs="+", default=None,
                         help="run the block scenes of --only at these multiples of their speed, fragments on")
+    parser.add_argument("--speeds", type=float, nargs="+", default=None,
+                        help="run the block scenes of --only at these speeds (m/s), fragments true and false")
     args = parser.parse_args()
+    if args.speed_factors and args.speeds:
+        parser.error("give --speed-factors or --speeds, not both")
+    if any(v <= 0 for v in (args.speed_factors or []) + (args.speeds or [])):
+        parser.error("speeds and speed factors must be > 0")
     torch.set_num_threads(max(1, torch.get_num_threads()))
     wanted = set(args.only) if args.only else set(BLOCKS) | {"momentum", "bar"}
     results = []
@@ -117,13 +129,18 @@ def main() -> None:
         if args.speed_factors:
             for factor in args.speed_factors:
                 record(block_result(name, True, args.grid, args.duration, factor))
+        elif args.speeds:
+            for speed in args.speeds:
+                for fragments in settings:
+                    record(block_result(name, fragments, args.grid, args.duration, speed / BLOCKS[name][0]))
         else:
             for fragments in settings:
                 record(block_result(name, fragments, args.grid, args.duration))
-    if "bar" in wanted and not args.speed_factors:
+    sweep = bool(args.speed_factors or args.speeds)
+    if "bar" in wanted and not sweep:
         for fragments in (True, False):
             record(bar_result(fragments, args.grid, 0.1))
-    if "momentum" in wanted and not args.speed_factors:
+    if "momentum" in wanted and not sweep:
         record(momentum_result(0.2))
     print(json.dumps({"benchmark": "fragments_acceptance", "grid": args.grid, "block_duration_s": args.duration,
                       "results": results}, indent=2))
