@@ -67,7 +67,7 @@ def main() -> None:
             setter(centre[axis] - half, centre[axis] + half)
         axes.view_init(*args.view)
         axes.set_axis_off()
-        axes.set_title(f"frame {number}: {count} pieces", fontsize=9)
+        axes.set_title(f"frame {number}: {count} piece{'' if count == 1 else 's'} of ≥ 1 %", fontsize=9)
     if args.title:
         figure.suptitle(args.title, fontsize=10)
     figure.tight_layout()
