@@ -5,7 +5,8 @@
 
 Reads ``frames/frame_NNNNN.npz`` of a ``simulate.py`` folder (which carry ``fragment_id``) and
 draws each chosen frame as a 3-D scatter: every fragment with >= 1 % of the particles gets its
-own colour, smaller pieces are grey. Prints one JSON line with the pieces per frame.
+own colour, smaller pieces are grey (the colours of view.py's "colour by piece"). Prints one JSON
+line with the pieces per frame.
 """
 from __future__ import annotations
 
@@ -19,22 +20,23 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from fracture_gs.mpm.output import atomic_write, frame_file_name, load_frame  # noqa: E402
+import torch  # noqa: E402
 
-MIN_SHARE = 0.01
+from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
+from fracture_gs.mpm.output import PARTICLES_FILE, atomic_write, frame_file_name, load_frame  # noqa: E402
+from fracture_gs.viewer.splats import PIECE_PALETTE, SMALL_PIECE_RGB  # noqa: E402
 
 
-def fragment_colours(labels: np.ndarray) -> tuple[np.ndarray, int]:
-    """RGBA per particle: a tab20 colour per fragment with >= 1 % of the particles (largest first),
-    grey for the rest; and the number of such fragments."""
-    sizes = np.bincount(labels)
-    big = np.flatnonzero(sizes >= MIN_SHARE * labels.size)
-    big = big[np.argsort(-sizes[big], kind="stable")]
-    palette = plt.get_cmap("tab20")(np.arange(20))
-    colours = np.tile(np.array([0.6, 0.6, 0.6, 0.35]), (labels.size, 1))
-    for rank, label in enumerate(big):
-        colours[labels == label] = palette[rank % 20]
-    return colours, len(big)
+def fragment_colours(labels: np.ndarray, obj_id: np.ndarray) -> tuple[np.ndarray, int]:
+    """RGBA per particle, as view.py's "colour by piece" colours them: the i-th largest fragment
+    holding >= 1 % of its object's particles gets tab20 colour i (piece_ranks), the rest grey; and
+    the number of such fragments."""
+    ranks = piece_ranks(torch.from_numpy(labels), torch.from_numpy(obj_id)).numpy()
+    colours = np.tile(np.array([*SMALL_PIECE_RGB, 0.35]), (labels.size, 1))
+    counted = ranks >= 0
+    colours[counted, :3] = PIECE_PALETTE[ranks[counted] % len(PIECE_PALETTE)]
+    colours[counted, 3] = 1.0
+    return colours, int(ranks.max()) + 1 if ranks.size else 0
 
 
 def main() -> None:
@@ -49,6 +51,8 @@ def main() -> None:
     frames = [load_frame(args.sim / "frames" / frame_file_name(f)) for f in args.frames]
     if any("fragment_id" not in frame for frame in frames):
         raise SystemExit(f"{args.sim}: frames have no fragment_id (simulated before issue 14?)")
+    with np.load(args.sim / PARTICLES_FILE) as particles:
+        obj_id = particles["obj_id"].astype(np.int64)
     everything = np.concatenate([frame["x"] for frame in frames])
     lower, upper = everything.min(0), everything.max(0)
     centre, half = (lower + upper) / 2, (upper - lower).max() / 2 * 1.05
@@ -56,7 +60,7 @@ def main() -> None:
     pieces = []
     for column, (number, frame) in enumerate(zip(args.frames, frames)):
         axes = figure.add_subplot(1, len(frames), column + 1, projection="3d")
-        colours, count = fragment_colours(frame["fragment_id"].astype(np.int64))
+        colours, count = fragment_colours(frame["fragment_id"].astype(np.int64), obj_id)
         pieces.append(count)
         pick = np.arange(frame["x"].shape[0])
         if pick.size > args.max_points:

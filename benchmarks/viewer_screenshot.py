@@ -4,7 +4,7 @@ saved as a PNG (GUI panel included).
 
 Usage: PYTHONPATH=. python benchmarks/viewer_screenshot.py --sim output/sims/two_spheres \
            --frame 10 --out docs/viewer.png [--size 1280 800] [--zoom 1.5] [--highlight] \
-           [--no-fpgo]
+           [--pieces] [--no-fpgo]
 Prints one JSON line (what it wrote).
 """
 from __future__ import annotations
@@ -45,6 +45,8 @@ def main() -> int:
     parser.add_argument("--out", default="docs/viewer.png")
     parser.add_argument("--size", type=int, nargs=2, default=(1280, 800), metavar=("W", "H"))
     parser.add_argument("--highlight", action="store_true", help="fractured particles in magenta")
+    parser.add_argument("--pieces", action="store_true",
+                        help="colour by piece (frames with fragment_id, simulated since issue 14)")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false")
     parser.add_argument("--zoom", type=float, default=1.0,
                         help="move the camera this many times closer than the initial view")
@@ -56,12 +58,16 @@ def main() -> int:
               "chromium-driver)", file=sys.stderr)
         return 2
     source = SimulationSource(args.sim, torch.device("cpu"))
+    if args.pieces and not source.has_pieces:
+        print(f"error: --pieces: the frames of {args.sim} have no fragment_id", file=sys.stderr)
+        return 2
     frame = args.frame if args.frame is not None else source.frames[-1]
     viewer = Viewer(source, ViewerOptions(port=0, keep_alive=True, fpgo=args.fpgo,
                                           start_frame=frame, zoom=args.zoom))
     url = viewer.start()
     try:
         viewer.gui["highlight"].value = args.highlight
+        viewer.gui["pieces"].value = args.pieces
         with HeadlessBrowser(*args.size) as browser:
             browser.open(url)
             if not wait_for(lambda: viewer.client_count > 0, 120) or \
@@ -79,7 +85,7 @@ def main() -> int:
     finally:
         viewer.stop()
     print(json.dumps({"out": args.out, "sim": str(args.sim), "frame": frame, "fpgo": args.fpgo,
-                      "highlight": args.highlight, "drawn_fraction": round(covered, 4)}))
+                      "highlight": args.highlight, "pieces": args.pieces, "drawn_fraction": round(covered, 4)}))
     return 0
 
 

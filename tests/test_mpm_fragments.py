@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
 from fracture_gs.mpm.fragment_scenes import colliding_spheres, precracked_bar
-from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes, piece_ranks
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.types import BLOCK, Domain
 from kernel_devices import KERNEL_DEVICES
@@ -353,6 +353,18 @@ def test_fragment_ids_label_connected_pieces():
     assert fragment_sizes(labels) == [2, 2, 1]
     assert count_fragments(labels, obj, min_fraction=0.5) == 3
     assert count_fragments(labels, obj, min_fraction=0.6) == 1  # only object 1's single particle
+
+
+def test_piece_ranks_order_the_counted_fragments_by_size():
+    labels = torch.tensor([3, 3, 3, 0, 0, 5, 6, 6, 6, 6, 9, 9])
+    obj = torch.tensor([0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 1])
+    ranks = piece_ranks(labels, obj, min_fraction=0.3)   # object 0: >= 1.8 particles, object 1: >= 1.8
+    assert ranks.tolist() == [1, 1, 1, 2, 2, -1, 0, 0, 0, 0, 3, 3]
+    counted = int(count_fragments(labels, obj, min_fraction=0.3))
+    assert counted == int(ranks.max()) + 1                  # the same fragments as the diagnostics
+    tie = piece_ranks(torch.tensor([4, 4, 1, 1]), torch.tensor([0, 0, 0, 0]))
+    assert tie.tolist() == [1, 1, 0, 0]                     # equal sizes: the smaller label first
+    assert piece_ranks(torch.zeros(0, dtype=torch.int64), torch.zeros(0, dtype=torch.int32)).numel() == 0
 
 
 def test_scene_option_fragments_is_validated():

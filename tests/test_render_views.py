@@ -130,3 +130,23 @@ def test_train_and_test_views_are_the_dataset_cameras_moved_with_the_object(tmp_
     (tmp_path / "model" / "cfg_args").write_text("Namespace(sh_degree=1)")
     with pytest.raises(ViewSpecError, match="cfg_args: no source_path"):
         resolve_views("train", sim, sim.frames, None)
+
+
+def test_frames_read_fragment_ids_when_present(three_frames: Simulation):
+    sim = three_frames
+    assert sim.load_frame(0).fragment_id is None          # runs before issue 14 have none
+    path = sim.frame_path(1)
+    with np.load(path) as data:
+        arrays = dict(data)
+    count = arrays["x"].shape[0]
+    labels = np.zeros(count, np.int32)
+    labels[count // 2:] = count // 2
+    np.savez(path, **arrays, fragment_id=labels)
+    loaded = sim.load_frame(1)
+    assert loaded.fragment_id.dtype == torch.int64 and loaded.fragment_id.tolist() == labels.tolist()
+    assert loaded.to(torch.device("cpu")).fragment_id.tolist() == labels.tolist()
+    for bad, message in ((labels[:-1], "shape"), (labels + count, r"labels in \[0, "),
+                         (labels.astype(np.float32), r"labels in \[0, ")):
+        np.savez(path, **arrays, fragment_id=bad)
+        with pytest.raises(SimulationError, match=message):
+            sim.load_frame(1)

@@ -28,8 +28,8 @@ from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_
 from fracture_gs.viewer.browser import WebsocketProbe, wait_for
 from fracture_gs.viewer.cache import FrameCache
 from fracture_gs.viewer.sources import ModelSource, SimulationSource
-from fracture_gs.viewer.splats import (HIGHLIGHT_RGB, ObjectSplats, object_splats, to_uint8,
-                                      unit_scale_for)
+from fracture_gs.viewer.splats import (HIGHLIGHT_RGB, PIECE_PALETTE, SMALL_PIECE_RGB, ObjectSplats,
+                                      object_splats, to_uint8, unit_scale_for)
 from render_scenes import block_scene, identity_frames, lattice_block, write_model, write_sim
 
 REPO = Path(__file__).resolve().parents[1]
@@ -98,6 +98,53 @@ def test_splats_are_split_by_object_in_viewer_units_with_dc_colour():
     np.testing.assert_array_equal(highlighted.rgba[:, 3], one.rgba[:, 3])
     np.testing.assert_array_equal(highlighted.centers, one.centers)
     assert one.packed(highlight_fractured=False) is one.buffer
+
+
+def test_piece_colours_follow_the_particles_fragment_rank():
+    objects = np.array([1, 0, 1, 1, 0, 1])
+    gaussians = _gaussians(6, objects)            # Gaussian i follows particle i % 5
+    ranks = torch.tensor([1, 0, -1, 0, 2])        # per particle (piece_ranks)
+    fractured = torch.tensor([False, False, False, True, False])
+    splats = object_splats(gaussians, 2, 10.0, fractured, ranks)
+    one = splats[1]                               # Gaussians 0, 2, 3, 5 -> particles 0, 2, 3, 0
+    np.testing.assert_array_equal(one.piece_rank, [1, -1, 0, 1])
+    coloured = ObjectSplats(one.packed(False, colour_pieces=True), one.fractured)
+    expected = np.stack([PIECE_PALETTE[1], SMALL_PIECE_RGB, PIECE_PALETTE[0], PIECE_PALETTE[1]])
+    np.testing.assert_array_equal(coloured.rgba[:, :3], to_uint8(expected))
+    np.testing.assert_array_equal(coloured.rgba[:, 3], one.rgba[:, 3])      # opacity kept
+    both = ObjectSplats(one.packed(True, colour_pieces=True), one.fractured)  # highlight on top
+    np.testing.assert_array_equal(both.rgba[2:, :3], np.tile(to_uint8(np.asarray(HIGHLIGHT_RGB)), (2, 1)))
+    np.testing.assert_array_equal(both.rgba[:2, :3], coloured.rgba[:2, :3])
+    plain = object_splats(gaussians, 2, 10.0, fractured)[1]   # no fragment ids: nothing to colour
+    assert plain.piece_rank is None and plain.packed(False, colour_pieces=True) is plain.buffer
+
+
+def test_colour_by_piece_in_the_gui(block_sim: Path, tmp_path: Path):
+    sim = tmp_path / "sim"
+    shutil.copytree(block_sim, sim)
+    frame_file = sim / "frames" / "frame_00001.npz"
+    with np.load(frame_file) as data:
+        arrays = dict(data)
+    rest = arrays["x"]
+    left = rest[:, 0] < np.median(rest[:, 0])
+    labels = np.where(left, 0, int(np.flatnonzero(~left)[0])).astype(np.int32)  # two halves
+    np.savez(frame_file, **arrays, fragment_id=labels)
+    source = SimulationSource(sim, CPU)
+    assert source.has_pieces and not SimulationSource(block_sim, CPU).has_pieces
+    prepared = source.prepare(1, False)
+    assert set(np.unique(prepared.objects[0].piece_rank)) == {0, 1}
+    assert source.prepare(0, False).objects[0].piece_rank is None   # frame 0 has no fragment_id
+    viewer = Viewer(source, ViewerOptions(port=0, start_frame=1, fpgo=False))
+    viewer.start()
+    try:
+        assert viewer.wait_until_shown(1, timeout=30) and viewer.gui["pieces"].visible
+        viewer.gui["pieces"].value = True
+        assert wait_for(lambda: viewer.shown == (1, False, False, True), 30)
+        sent = ObjectSplats(np.asarray(viewer._nodes[0].buffer), prepared.objects[0].fractured)
+        assert {tuple(rgb) for rgb in sent.rgba[:, :3]} == {tuple(to_uint8(PIECE_PALETTE[0])),
+                                                            tuple(to_uint8(PIECE_PALETTE[1]))}
+    finally:
+        viewer.stop()
 
 
 def test_packing_is_visers_own_layout():
@@ -251,7 +298,7 @@ def test_frame_diagnostics_reach_the_gui(block_sim: Path, tmp_path: Path):
         prepared = viewer.cache.request((1, True)).result(30)
         np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].buffer)
         viewer.gui["highlight"].value = True          # fractured Gaussians re-sent in magenta
-        assert wait_for(lambda: viewer.shown == (1, True, True), 30)
+        assert wait_for(lambda: viewer.shown == (1, True, True, False), 30)
         np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].packed(True))
         assert prepared.objects[0].fractured.any() and not prepared.objects[0].fractured.all()
         viewer.gui["objects"][0].value = False        # per-object visibility
@@ -276,6 +323,7 @@ def test_model_source_shows_the_trained_gaussians(tmp_path: Path):
     try:
         assert viewer.wait_until_shown(0, timeout=30)
         assert not viewer.gui["fpgo"].visible and not viewer.gui["highlight"].visible
+        assert not viewer.gui["pieces"].visible
         assert viewer.gui["diagnostics"] == {} and viewer.gui["frame"].disabled
         assert viewer.gui["numbers"]["gaussians"].value == model.num_gaussians
     finally:

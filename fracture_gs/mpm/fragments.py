@@ -42,6 +42,26 @@ def count_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
     return int((sizes >= min_fraction * object_sizes[owner]).sum())
 
 
+def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
+                min_fraction: float = MIN_FRAGMENT_FRACTION) -> torch.Tensor:
+    """(N,) int64 rank of every particle's fragment among the fragments that :func:`count_fragments`
+    counts (at least ``min_fraction`` of their object's particles): 0 for the largest of them, 1
+    for the next (ties: smaller label first), ...; -1 for the particles of smaller fragments. What
+    the pictures colour by (``benchmarks/fragment_strip.py``, ``view.py``'s "colour by piece")."""
+    if labels.numel() == 0:
+        return torch.zeros(0, dtype=torch.int64, device=labels.device)
+    labels = labels.long()
+    sizes = torch.bincount(labels)
+    owner = torch.zeros_like(sizes).scatter_(0, labels, obj_id.long())
+    object_sizes = torch.bincount(obj_id.long())
+    counted = (sizes > 0) & (sizes >= min_fraction * object_sizes[owner])
+    candidates = torch.nonzero(counted).flatten()                     # ascending labels
+    order = torch.argsort(sizes[candidates], descending=True, stable=True)
+    rank_of_label = torch.full_like(sizes, -1)
+    rank_of_label[candidates[order]] = torch.arange(len(candidates), device=labels.device)
+    return rank_of_label[labels]
+
+
 def fragment_sizes(labels: torch.Tensor) -> list[int]:
     """Particle counts of the fragments, largest first."""
     return sorted(torch.bincount(labels).tolist(), reverse=True) if labels.numel() else []

@@ -23,6 +23,7 @@ from fracture_gs.mpm.output import (FRAMES_DIR, PARTICLES_FILE, SCENE_FILE, fram
 
 PARTICLE_ARRAYS = ("rest_x", "obj_id", "is_surface", "gaussian_index", "rest_volume")
 FRAME_ARRAYS = ("x", "F_E", "fractured")
+OPTIONAL_FRAME_ARRAYS = ("fragment_id",)   # runs since issue 14 (connected pieces)
 _FRAME_PATTERN = re.compile(r"^frame_(\d+)\.npz$")
 
 
@@ -53,20 +54,24 @@ class SimFrame:
     x: torch.Tensor          # (N,3) float32
     F_E: torch.Tensor        # (N,3,3) float32 elastic deformation gradient
     fractured: torch.Tensor  # (N,) bool, latched fracture flag
+    fragment_id: torch.Tensor | None = None  # (N,) int64 connected piece, None in older runs
 
     def to(self, device: torch.device) -> "SimFrame":
         return SimFrame(self.index, self.x.to(device), self.F_E.to(device),
-                        self.fractured.to(device))
+                        self.fractured.to(device),
+                        self.fragment_id.to(device) if self.fragment_id is not None else None)
 
 
-def _load_npz(path: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Arrays ``names`` of an ``.npz``; SimulationError naming the file when it cannot be read."""
+def _load_npz(path: Path, names: tuple[str, ...],
+              optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Arrays ``names`` (and those of ``optional`` that are present) of an ``.npz``;
+    SimulationError naming the file when it cannot be read or lacks one of ``names``."""
     try:
         with np.load(path, allow_pickle=False) as data:
             missing = [name for name in names if name not in data.files]
             if missing:
                 raise SimulationError(f"{path}: missing array '{missing[0]}'")
-            return {name: data[name] for name in names}
+            return {name: data[name] for name in names + optional if name in data.files}
     except FileNotFoundError:
         raise SimulationError(f"{path}: file not found") from None
     except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
@@ -161,16 +166,23 @@ class Simulation:
     def load_frame(self, index: int, device: torch.device | None = None) -> SimFrame:
         """Frame ``index`` as tensors (SimulationError naming the file if it is unusable)."""
         path = self.frame_path(index)
-        arrays = _load_npz(path, FRAME_ARRAYS)
+        arrays = _load_npz(path, FRAME_ARRAYS, OPTIONAL_FRAME_ARRAYS)
         count = len(self.particles)
-        shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,)}
+        shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,), "fragment_id": (count,)}
         for name, shape in shapes.items():
-            if arrays[name].shape != shape:
+            if name in arrays and arrays[name].shape != shape:
                 raise SimulationError(f"{path}: '{name}' has shape {arrays[name].shape}, expected "
                                       f"{shape} ({count} particles in {PARTICLES_FILE})")
         x, F_E = arrays["x"].astype(np.float32), arrays["F_E"].astype(np.float32)
         if not (np.isfinite(x).all() and np.isfinite(F_E).all()):
             raise SimulationError(f"{path}: positions or F_E contain NaN or Inf")
+        fragment_id = None
+        if "fragment_id" in arrays:
+            labels = arrays["fragment_id"]
+            if labels.dtype.kind not in "iu" or (count and not (0 <= labels.min() and labels.max() < count)):
+                raise SimulationError(f"{path}: 'fragment_id' must hold integer labels in [0, {count})")
+            fragment_id = torch.from_numpy(labels.astype(np.int64))
         device = device if device is not None else torch.device("cpu")
         return SimFrame(index, torch.from_numpy(x).to(device), torch.from_numpy(F_E).to(device),
-                        torch.from_numpy(arrays["fractured"].astype(bool)).to(device))
+                        torch.from_numpy(arrays["fractured"].astype(bool)).to(device),
+                        fragment_id.to(device) if fragment_id is not None else None)

@@ -1,6 +1,7 @@
 """The viewer: a local viser server that shows a :class:`~fracture_gs.viewer.sources.FrameSource`
 as Gaussian splats, with a frame slider, play / pause and speed, FPGO on/off, per-object
-visibility, a fractured-particle highlight and the current frame's diagnostics.
+visibility, a fractured-particle highlight, a colour per fragment (connected piece) and the
+current frame's diagnostics.
 
 Threads (all ended by :meth:`Viewer.stop`; the test checks that none is left):
 
@@ -96,7 +97,7 @@ class Viewer:
         self._condition = threading.Condition()
         self._stop = threading.Event()
         self.stop_requested = threading.Event()   # set by the disconnect policy
-        self._shown: tuple[int, bool, bool] | None = None   # (frame, fpgo, highlight) on screen
+        self._shown: tuple[int, bool, bool, bool] | None = None   # (frame, fpgo, highlight, pieces)
         self._shown_frame: SplatFrame | None = None
         self._dirty = True
         self._playing = False
@@ -217,6 +218,10 @@ class Viewer:
                                     visible=source.has_fracture)
             highlight = gui.add_checkbox("highlight fractured", initial_value=False,
                                          visible=source.has_fracture)
+            pieces = gui.add_checkbox("colour by piece", initial_value=False,
+                                      visible=source.has_pieces,
+                                      hint="each fragment (connected piece, frames' fragment_id) in "
+                                           "its own colour, largest first; pieces below 1 % grey")
         with gui.add_folder("Objects"):
             visible = [gui.add_checkbox(name, initial_value=True) for name in source.object_names]
         with gui.add_folder("Frame"):
@@ -236,11 +241,13 @@ class Viewer:
                                     ("total_energy", "total energy")):
                     diagnostics[name] = gui.add_number(label, 0.0, disabled=True, step=1e-6)
         self.gui = {"frame": slider, "play": play, "pause": pause, "speed": speed, "loop": loop,
-                    "fpgo": fpgo, "highlight": highlight, "objects": visible, "numbers": numbers,
+                    "fpgo": fpgo, "highlight": highlight, "pieces": pieces, "objects": visible,
+                    "numbers": numbers,
                     "status": status, "diagnostics": diagnostics}
         slider.on_update(lambda _: self._mark_dirty())
         fpgo.on_update(lambda _: self._mark_dirty())
         highlight.on_update(lambda _: self._mark_dirty())
+        pieces.on_update(lambda _: self._mark_dirty())
         for checkbox in visible:
             checkbox.on_update(lambda _: self._apply_visibility())
         play.on_click(lambda _: self.set_playing(True))
@@ -264,12 +271,12 @@ class Viewer:
             self._dirty = True
             self._condition.notify_all()
 
-    def _wanted(self) -> tuple[int, bool, bool]:
+    def _wanted(self) -> tuple[int, bool, bool, bool]:
         frame = int(self.gui["frame"].value)
         if frame not in self.source.frames:   # the slider may span a gap: nearest frame
             frame = min(self.source.frames, key=lambda f: abs(f - frame))
         return frame, bool(self.gui["fpgo"].value) and self.source.has_fracture, \
-            bool(self.gui["highlight"].value)
+            bool(self.gui["highlight"].value), bool(self.gui["pieces"].value)
 
     # ------------------------------------------------------------------ clients
 
@@ -360,7 +367,7 @@ class Viewer:
                 return
         else:
             return
-        self._send(prepared, highlight=key[2])
+        self._send(prepared, highlight=key[2], pieces=key[3])
         self.gui["status"].value = f"frame {key[0]} shown"
         self._shown, self._shown_frame = key, prepared
         self._notify_shown()
@@ -369,7 +376,7 @@ class Viewer:
         with self._condition:
             self._condition.notify_all()
 
-    def _send(self, prepared: SplatFrame, highlight: bool) -> None:
+    def _send(self, prepared: SplatFrame, highlight: bool, pieces: bool = False) -> None:
         server = self.server
         self.send_started = time.perf_counter()
         with server.atomic():
@@ -386,7 +393,7 @@ class Viewer:
                         scale=1.0 / prepared.unit_scale)
                     self._nodes.extend([None] * (index + 1 - len(self._nodes)))
                     self._nodes[index] = node
-                self._nodes[index].buffer = splats.packed(highlight)
+                self._nodes[index].buffer = splats.packed(highlight, pieces)
             self._apply_visibility(prepared)
             self._update_numbers(prepared)
         server.flush()
@@ -414,8 +421,9 @@ class Viewer:
     # ------------------------------------------------------------------ for tests and benchmarks
 
     @property
-    def shown(self) -> tuple[int, bool, bool] | None:
-        """(frame, fpgo, highlight) currently sent to the browsers, or None before the first."""
+    def shown(self) -> tuple[int, bool, bool, bool] | None:
+        """(frame, fpgo, highlight, pieces) currently sent to the browsers, or None before the
+        first."""
         with self._condition:
             return self._shown
 

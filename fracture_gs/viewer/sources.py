@@ -21,6 +21,7 @@ import torch
 
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.gaussians import PlyFormatError, read_ply
+from fracture_gs.mpm.fragments import piece_ranks
 from fracture_gs.mpm.output import DIAGNOSTICS_CSV, read_diagnostics_csv
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.model_folder import ModelError, latest_point_cloud
@@ -44,6 +45,7 @@ class FrameSource(Protocol):
     object_names: list[str]
     bounds: SceneBounds
     has_fracture: bool          # FPGO and the fractured highlight mean something
+    has_pieces: bool            # the frames carry fragment_id ("colour by piece")
 
     def prepare(self, frame: int, fpgo: bool) -> SplatFrame:
         """The splats of ``frame`` (FPGO on or off)."""
@@ -84,7 +86,10 @@ class SimulationSource:
         self.backend = backend
         self.frames = list(self.sim.frames)
         self.object_names = list(self.sim.object_names)
-        last = self.sim.load_frame(self.frames[-1]).x.numpy()
+        last_frame = self.sim.load_frame(self.frames[-1])
+        self.has_pieces = last_frame.fragment_id is not None
+        self._obj_id = torch.from_numpy(self.sim.particles.obj_id.astype(np.int64))
+        last = last_frame.x.numpy()
         points = np.concatenate([self.sim.particles.rest_x, last])
         gravity = np.asarray(self.sim.scene.gravity, np.float64)
         up = -gravity / np.linalg.norm(gravity) if np.linalg.norm(gravity) > 0 else \
@@ -101,8 +106,11 @@ class SimulationSource:
         started = time.perf_counter()
         loaded = self.sim.load_frame(frame, self.device)
         gaussians = self.scene.frame(loaded, fpgo=fpgo, backend=self.backend)
+        ranks = None
+        if loaded.fragment_id is not None:
+            ranks = piece_ranks(loaded.fragment_id.cpu(), self._obj_id)
         splats = object_splats(gaussians, len(self.object_names), self.unit_scale,
-                               loaded.fractured)
+                               loaded.fractured, ranks)
         return SplatFrame(index=frame, objects=splats, unit_scale=self.unit_scale,
                           gaussians=len(gaussians), fpgo_gaussians=int(gaussians.is_fpgo.sum()),
                           fractured_particles=int(loaded.fractured.sum()),
@@ -141,6 +149,7 @@ class ModelSource:
     """A trained model folder (``train.py`` output) shown as a single, static frame."""
 
     has_fracture = False
+    has_pieces = False
 
     def __init__(self, folder: str | Path, device: torch.device) -> None:
         root = Path(folder)

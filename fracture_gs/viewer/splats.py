@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import matplotlib
 import numpy as np
 import torch
 
@@ -29,6 +30,10 @@ from fracture_gs.render.sh import SH_C0
 
 VIEWER_EXTENT = 100.0                      # the scene's bounding box diagonal in viewer units
 HIGHLIGHT_RGB = (1.0, 0.05, 0.75)          # fractured particles' Gaussians, on request
+# "colour by piece": the i-th largest fragment gets PIECE_PALETTE[i % 20] (matplotlib's tab20, as
+# benchmarks/fragment_strip.py draws them), fragments below 1 % of their object SMALL_PIECE_RGB.
+PIECE_PALETTE = np.asarray(matplotlib.colormaps["tab20"].colors, np.float64)
+SMALL_PIECE_RGB = (0.6, 0.6, 0.6)
 
 
 @dataclass(frozen=True)
@@ -40,6 +45,8 @@ class ObjectSplats:
 
     buffer: np.ndarray       # (N,8) uint32
     fractured: np.ndarray    # (N,) bool: the Gaussian follows a fractured particle or is FPGO's
+    piece_rank: np.ndarray | None = None   # (N,) int64: rank of the followed particle's fragment
+    #                                        (-1: a fragment below 1 %); None: no fragment_id
 
     def __len__(self) -> int:
         return int(self.buffer.shape[0])
@@ -61,14 +68,24 @@ class ObjectSplats:
         """(N,4) uint8."""
         return np.ascontiguousarray(self.buffer[:, 7]).view(np.uint8).reshape(-1, 4)
 
-    def packed(self, highlight_fractured: bool) -> np.ndarray:
-        """The buffer to send: as prepared, or with fractured Gaussians in :data:`HIGHLIGHT_RGB`
-        (their opacity kept)."""
-        if not highlight_fractured or not self.fractured.any():
+    def packed(self, highlight_fractured: bool, colour_pieces: bool = False) -> np.ndarray:
+        """The buffer to send: as prepared; with ``colour_pieces`` every Gaussian in its
+        fragment's colour (:data:`PIECE_PALETTE` by size rank, :data:`SMALL_PIECE_RGB` for small
+        fragments; nothing changes without fragment ids); with ``highlight_fractured`` the
+        fractured Gaussians in :data:`HIGHLIGHT_RGB` on top. Opacities are kept."""
+        pieces = colour_pieces and self.piece_rank is not None and len(self) > 0
+        highlight = highlight_fractured and bool(self.fractured.any())
+        if not pieces and not highlight:
             return self.buffer
         buffer = self.buffer.copy()
         rgba = self.rgba
-        rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
+        if pieces:
+            rgb = np.where((self.piece_rank >= 0)[:, None],
+                           PIECE_PALETTE[np.maximum(self.piece_rank, 0) % len(PIECE_PALETTE)],
+                           np.asarray(SMALL_PIECE_RGB))
+            rgba[:, :3] = to_uint8(rgb)
+        if highlight:
+            rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
         buffer[:, 7] = rgba.view(np.uint32).reshape(-1)
         return buffer
 
@@ -119,25 +136,33 @@ def dc_colours(sh: np.ndarray) -> np.ndarray:
 
 
 def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: float,
-                  fractured_particles: torch.Tensor | None = None) -> list[ObjectSplats]:
+                  fractured_particles: torch.Tensor | None = None,
+                  particle_piece_rank: torch.Tensor | None = None) -> list[ObjectSplats]:
     """Split ``gaussians`` by object, convert and pack them (see the module docstring).
 
     ``fractured_particles`` (bool per particle) marks the Gaussians that follow a fractured
-    particle; FPGO's own Gaussians always count as fractured.
+    particle; FPGO's own Gaussians always count as fractured. ``particle_piece_rank`` (int per
+    particle, :func:`fracture_gs.mpm.fragments.piece_ranks`) gives each Gaussian the rank of the
+    fragment of the particle it follows (-1 where it follows none).
     """
     def numpy(values: torch.Tensor) -> np.ndarray:   # numpy from here: no torch thread pool
         return values.detach().cpu().numpy()
 
     fractured = numpy(gaussians.is_fpgo).copy()
+    following = numpy(gaussians.particle)
+    valid = following >= 0
     if fractured_particles is not None and len(gaussians):
-        following = numpy(gaussians.particle)
-        valid = following >= 0
         fractured[valid] |= numpy(fractured_particles.bool())[following[valid]]
+    piece_rank = None
+    if particle_piece_rank is not None:
+        piece_rank = np.full(len(gaussians), -1, np.int64)
+        piece_rank[valid] = numpy(particle_piece_rank.long())[following[valid]]
     object_id = numpy(gaussians.object_id)
     order = None
     if object_id.size and (np.diff(object_id) < 0).any():   # FPGO may append out of order
         order = np.argsort(object_id, kind="stable")
         object_id, fractured = object_id[order], fractured[order]
+        piece_rank = piece_rank[order] if piece_rank is not None else None
 
     def column(values: torch.Tensor) -> np.ndarray:
         array = numpy(values.float())
@@ -147,9 +172,10 @@ def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: floa
                          column(gaussians.covariances) * (unit_scale * unit_scale),
                          dc_colours(column(gaussians.sh[:, :1])), column(gaussians.opacities))
     bounds = np.searchsorted(object_id, np.arange(object_count + 1))
-    return [ObjectSplats(buffer[bounds[i]:bounds[i + 1]], fractured[bounds[i]:bounds[i + 1]])
+    return [ObjectSplats(buffer[bounds[i]:bounds[i + 1]], fractured[bounds[i]:bounds[i + 1]],
+                         piece_rank[bounds[i]:bounds[i + 1]] if piece_rank is not None else None)
             for i in range(object_count)]
 
 
-__all__ = ["HIGHLIGHT_RGB", "ObjectSplats", "SplatFrame", "VIEWER_EXTENT", "dc_colours",
+__all__ = ["HIGHLIGHT_RGB", "PIECE_PALETTE", "SMALL_PIECE_RGB", "ObjectSplats", "SplatFrame", "VIEWER_EXTENT", "dc_colours",
            "object_splats", "pack_splats", "to_uint8", "unit_scale_for"]
