@@ -17,7 +17,9 @@ multiples of their drop speed instead, fragments on, to show how much the piece 
 the exact speed (the weak block's small corner pieces at 6 m/s sit near the 2 % line).
 ``--speeds 3.5 3.9 4.0 4.2`` runs the chosen block scenes at these speeds (m/s) with each of their
 ``fragments`` settings, to find the speed from which a block breaks apart with and without the
-partition.
+partition. ``--jitter-seeds 0 1 2`` samples the blocks as a YAML scene's box primitive is sampled
+(jittered, 16,751 particles at grid 64: the issue's own count) with each seed, instead of as a
+lattice; ``--ground-friction 0.5`` sets the ground's friction (a YAML ground's default).
 """
 from __future__ import annotations
 
@@ -64,16 +66,21 @@ def run(solver, duration: float, samples: int = 30) -> dict:
             "split_particle_steps": split}
 
 
-def block_result(name: str, fragments: bool, grid: int, duration: float, speed_factor: float = 1.0) -> dict:
-    """One block drop of scene ``name`` at ``speed_factor`` times its speed."""
+def block_result(name: str, fragments: bool, grid: int, duration: float, speed_factor: float = 1.0,
+                 jitter_seed: int | None = None, ground_friction: float = 0.3) -> dict:
+    """One block drop of scene ``name`` at ``speed_factor`` times its speed (a lattice block, or
+    sampled as a YAML box primitive with ``jitter_seed``)."""
     scene_speed, E, density, alpha0, beta, _ = BLOCKS[name]
     speed = speed_factor * scene_speed
-    solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=grid, fragments=fragments)
+    solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=grid, fragments=fragments,
+                        jitter_seed=jitter_seed, ground_friction=ground_friction)
     out = run(solver, duration)
     sizes = fragment_sizes(solver.fragment_ids())
     n = len(solver.particles)
     pieces = [s for s in sizes if s >= PIECE_SHARE * n]
-    out.update(scene=name, fragments=fragments, particles=n, speed=round(speed, 6), E=E, density=density, alpha0=alpha0, beta=beta,
+    out.update(scene=name, fragments=fragments, particles=n,
+               sampling="lattice" if jitter_seed is None else f"jittered, seed {jitter_seed}",
+               ground_friction=ground_friction, speed=round(speed, 6), E=E, density=density, alpha0=alpha0, beta=beta,
                fractured=round(float(solver.state.fractured.float().mean()), 4),
                pieces_2pct=len(pieces), piece_sizes_2pct=pieces, largest_pieces=sizes[:8],
                components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]))
@@ -110,11 +117,21 @@ def main() -> None:
                         help="run the block scenes of --only at these multiples of their speed, fragments on")
     parser.add_argument("--speeds", type=float, nargs="+", default=None,
                         help="run the block scenes of --only at these speeds (m/s), fragments true and false")
+    parser.add_argument("--jitter-seeds", type=int, nargs="+", default=None,
+                        help="sample the blocks as a YAML scene's box primitive (jittered) with each of these "
+                             "seeds instead of as a lattice")
+    parser.add_argument("--ground-friction", type=float, default=0.3,
+                        help="friction of the ground under the blocks (the scenes' 0.3; a YAML ground's default is 0.5)")
     args = parser.parse_args()
     if args.speed_factors and args.speeds:
         parser.error("give --speed-factors or --speeds, not both")
     if any(v <= 0 for v in (args.speed_factors or []) + (args.speeds or [])):
         parser.error("speeds and speed factors must be > 0")
+    if any(seed < 0 for seed in args.jitter_seeds or []):
+        parser.error("--jitter-seeds must be >= 0")
+    if not args.ground_friction >= 0:
+        parser.error("--ground-friction must be >= 0")
+    seeds = args.jitter_seeds if args.jitter_seeds else [None]
     torch.set_num_threads(max(1, torch.get_num_threads()))
     wanted = set(args.only) if args.only else set(BLOCKS) | {"momentum", "bar"}
     results = []
@@ -126,16 +143,20 @@ def main() -> None:
     for name, (*_, settings) in BLOCKS.items():
         if name not in wanted:
             continue
-        if args.speed_factors:
-            for factor in args.speed_factors:
-                record(block_result(name, True, args.grid, args.duration, factor))
-        elif args.speeds:
-            for speed in args.speeds:
+        for seed in seeds:
+            def one(fragments: bool, factor: float = 1.0) -> None:
+                record(block_result(name, fragments, args.grid, args.duration, factor, seed, args.ground_friction))
+
+            if args.speed_factors:
+                for factor in args.speed_factors:
+                    one(True, factor)
+            elif args.speeds:
+                for speed in args.speeds:
+                    for fragments in settings:
+                        one(fragments, speed / BLOCKS[name][0])
+            else:
                 for fragments in settings:
-                    record(block_result(name, fragments, args.grid, args.duration, speed / BLOCKS[name][0]))
-        else:
-            for fragments in settings:
-                record(block_result(name, fragments, args.grid, args.duration))
+                    one(fragments)
     sweep = bool(args.speed_factors or args.speeds)
     if "bar" in wanted and not sweep:
         for fragments in (True, False):

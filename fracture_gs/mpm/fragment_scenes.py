@@ -11,27 +11,44 @@ the full one.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
+import numpy as np
 import torch
+
+from fracture_gs.config.scene import PrimitiveConfig
 
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
+from fracture_gs.mpm.scene import sample_primitive
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import ContactSettings, Domain, GroundBoundary
 
 GROUND_HEIGHT = 0.1
 
 
+def jittered_box(centre: Sequence[float], size: float, dx: float, seed: int) -> torch.Tensor:
+    """A cube of edge ``size`` sampled as a YAML scene's box primitive with 8 particles per cell
+    is (:func:`fracture_gs.mpm.scene.sample_primitive`: one particle at a uniform random place in
+    each sub-cell of edge dx/2; the random stream of object 0 of a scene with ``seed``)."""
+    primitive = PrimitiveConfig(shape="box", size=(size, size, size), particles_per_cell=8)
+    local = sample_primitive(primitive, dx, 1.0, np.random.default_rng([seed, 0]))
+    return torch.from_numpy(local.x + np.asarray(centre, np.float64)).float()
+
+
 def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, beta: float = 0.5,
                grid: int = 64, size: float = 0.2, fragments: bool = True, ground_friction: float = 0.3,
-               backend: str = "auto") -> CollisionMPM:
-    """A cube of edge ``size`` (8 particles per cell) falling at ``speed`` onto the ground (its lowest
-    particles half a spacing above it), under gravity. ``alpha0=None``: an elastic block."""
+               backend: str = "auto", jitter_seed: int | None = None) -> CollisionMPM:
+    """A cube of edge ``size`` (8 particles per cell) falling at ``speed`` onto the ground (its
+    bottom face half a spacing above it), under gravity. ``alpha0=None``: an elastic block. The
+    particles form a lattice, or with ``jitter_seed`` are sampled as a YAML scene with that
+    ``seed`` samples a box primitive (:func:`jittered_box`)."""
     domain = Domain((0, 0, 0), (1, 1, 1), grid)
     spacing = domain.dx / 2
     centre = (0.5, 0.5, GROUND_HEIGHT + size / 2 + spacing / 2)
-    block = lattice_box(centre, (size, size, size), spacing)
+    block = (lattice_box(centre, (size, size, size), spacing) if jitter_seed is None else
+             jittered_box(centre, size, domain.dx, jitter_seed))
     material = (ElasticMaterial(E=E, nu=0.3, density=density) if alpha0 is None else
                 NACCMaterial(E=E, nu=0.3, density=density, alpha0=alpha0, beta=beta, xi=1.0, M=2.36))
     particles = particle_set([LatticeBody(block, (0.0, 0.0, -speed), 0, spacing)], [material.density])
