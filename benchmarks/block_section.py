@@ -32,9 +32,13 @@ from fragment_strip import fragment_colours  # noqa: E402
 ALPHA_RANGE = (-0.1, 0.1)  # colour scale of α: compacted (hardened) ... dilated past the threshold 0
 
 
-def middle_layer(rest_y: np.ndarray) -> np.ndarray:
-    """Bool mask of the lattice layer (constant y in the rest configuration) nearest the centre."""
+def middle_layer(rest_y: np.ndarray, thickness: float = 0.0) -> np.ndarray:
+    """Bool mask of the particles of the middle layer at rest: the lattice layer (constant y)
+    nearest the centre, or with ``thickness`` > 0 (jittered blocks) the slab of that thickness
+    around the centre."""
     centre = 0.5 * (rest_y.min() + rest_y.max())
+    if thickness > 0:
+        return np.abs(rest_y - centre) < 0.5 * thickness
     nearest = rest_y[np.argmin(np.abs(rest_y - centre))]
     return np.abs(rest_y - nearest) < 1e-6
 
@@ -45,6 +49,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--times", type=float, nargs="+", default=[0.01, 0.02, 0.04, 0.08, 0.15])
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--no-fragments", action="store_true", help="contact.fragments false")
+    parser.add_argument("--jitter-seed", type=int, default=None,
+                        help="sample the block as a YAML box primitive with this seed (default: a lattice)")
+    parser.add_argument("--ground-friction", type=float, default=0.3)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     if args.scene not in BLOCKS:
@@ -54,10 +61,16 @@ def main(argv: list[str] | None = None) -> int:
     if times[0] <= 0:
         print(f"error: times must be > 0, got {times[0]}", file=sys.stderr)
         return 2
+    if args.jitter_seed is not None and args.jitter_seed < 0 or not args.ground_friction >= 0:
+        print("error: --jitter-seed and --ground-friction must be >= 0", file=sys.stderr)
+        return 2
     speed, E, density, alpha0, beta, _ = BLOCKS[args.scene]
     solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=args.grid,
-                        fragments=not args.no_fragments)
-    layer = middle_layer(solver.state_in_input_order().x.numpy()[:, 1])
+                        fragments=not args.no_fragments, jitter_seed=args.jitter_seed,
+                        ground_friction=args.ground_friction)
+    spacing = 0.5 / args.grid   # particle spacing dx / 2 (domain of 1 m)
+    layer = middle_layer(solver.state_in_input_order().x.numpy()[:, 1],
+                         spacing if args.jitter_seed is not None else 0.0)
     n = len(solver.particles)
     lower, upper = np.full(2, np.inf), np.full(2, -np.inf)  # (x, z) bounds of every panel
     figure, axes = plt.subplots(2, len(times), figsize=(3.0 * len(times), 3.6), squeeze=False,
@@ -73,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
                "largest_pieces": sizes[:4], "fractured": round(float(state.fractured.float().mean()), 4),
                "height": round(float(x[:, 2].max() - x[:, 2].min()), 4)}
         print(json.dumps(row), flush=True)
-        colours, _ = fragment_colours(labels)
+        colours, _ = fragment_colours(labels, np.zeros(n, np.int64))
         lower = np.minimum(lower, x[layer][:, [0, 2]].min(0))
         upper = np.maximum(upper, x[layer][:, [0, 2]].max(0))
         top, bottom = axes[0, column], axes[1, column]
