@@ -7,7 +7,9 @@
    β = 0.3, 3.5 m/s), each with ``fragments`` true and false; the tests' block with E and ρ divided
    by 10 (same E/ρ, same dynamics), the weak block with α0 = −5 and an elastic block, with fragments. Reported: fractured share, the pieces (connected components
    linking particles closer than 1.5 x their spacing) with >= 2 % of the particles and their
-   sizes, the largest pieces, the energy peak relative to the start.
+   sizes, the largest pieces, the energy peak relative to the start, and the pieces (>= 2 %) that
+   the never-fractured particles form when linked only to each other (one such piece: unbroken
+   material spans the block).
 2. Momentum: two NACC spheres colliding without gravity or walls, fragments on.
 3. A pre-cracked bar (α0 = 0.5 on the middle slab) pulled apart at ±1 m/s: the gap between the
    halves, fragments true and false.
@@ -32,7 +34,7 @@ import numpy as np
 import torch
 
 from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
-from fracture_gs.mpm.fragments import fragment_sizes
+from fracture_gs.mpm.fragments import fragment_ids, fragment_sizes
 from scipy.spatial import cKDTree
 
 PIECE_SHARE = 0.02  # acceptance 1: pieces of >= 2 % of the particles
@@ -78,12 +80,19 @@ def block_result(name: str, fragments: bool, grid: int, duration: float, speed_f
     sizes = fragment_sizes(solver.fragment_ids())
     n = len(solver.particles)
     pieces = [s for s in sizes if s >= PIECE_SHARE * n]
+    # The never-fractured particles, linked only to each other: if they alone form one piece,
+    # unbroken material spans the block and no crack opening can free a piece of it.
+    state = solver.state_in_input_order()
+    intact = ~state.fractured
+    intact_sizes = fragment_sizes(fragment_ids(state.x[intact], solver.input_particles.obj_id[intact],
+                                               solver.fragment_radius)) if bool(intact.any()) else []
     out.update(scene=name, fragments=fragments, particles=n,
                sampling="lattice" if jitter_seed is None else f"jittered, seed {jitter_seed}",
                ground_friction=ground_friction, speed=round(speed, 6), E=E, density=density, alpha0=alpha0, beta=beta,
                fractured=round(float(solver.state.fractured.float().mean()), 4),
                pieces_2pct=len(pieces), piece_sizes_2pct=pieces, largest_pieces=sizes[:8],
-               components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]))
+               components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]),
+               intact_pieces_2pct=[s for s in intact_sizes if s >= PIECE_SHARE * n])
     return out
 
 
