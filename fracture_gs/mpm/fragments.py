@@ -31,15 +31,23 @@ def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float, backend: 
     return connected_components(x, radius, group=obj_id, backend=backend)
 
 
+def _counted_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
+                       min_fraction: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(sizes, counted) per label: the fragment's particle count, and whether it is a fragment
+    holding at least ``min_fraction`` of its object's particles."""
+    labels = labels.long()
+    sizes = torch.bincount(labels)
+    owner = torch.zeros_like(sizes).scatter_(0, labels, obj_id.long())  # object of each fragment
+    object_sizes = torch.bincount(obj_id.long())
+    return sizes, (sizes > 0) & (sizes >= min_fraction * object_sizes[owner])
+
+
 def count_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
                     min_fraction: float = MIN_FRAGMENT_FRACTION) -> int:
     """Number of fragments holding at least ``min_fraction`` of their object's particles."""
     if labels.numel() == 0:
         return 0
-    sizes = torch.bincount(labels)
-    owner = torch.zeros_like(sizes).scatter_(0, labels, obj_id.long())  # object of each fragment
-    object_sizes = torch.bincount(obj_id.long())
-    return int((sizes >= min_fraction * object_sizes[owner]).sum())
+    return int(_counted_fragments(labels, obj_id, min_fraction)[1].sum())
 
 
 def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
@@ -50,16 +58,12 @@ def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
     the pictures colour by (``benchmarks/fragment_strip.py``, ``view.py``'s "colour by piece")."""
     if labels.numel() == 0:
         return torch.zeros(0, dtype=torch.int64, device=labels.device)
-    labels = labels.long()
-    sizes = torch.bincount(labels)
-    owner = torch.zeros_like(sizes).scatter_(0, labels, obj_id.long())
-    object_sizes = torch.bincount(obj_id.long())
-    counted = (sizes > 0) & (sizes >= min_fraction * object_sizes[owner])
+    sizes, counted = _counted_fragments(labels, obj_id, min_fraction)
     candidates = torch.nonzero(counted).flatten()                     # ascending labels
     order = torch.argsort(sizes[candidates], descending=True, stable=True)
     rank_of_label = torch.full_like(sizes, -1)
     rank_of_label[candidates[order]] = torch.arange(len(candidates), device=labels.device)
-    return rank_of_label[labels]
+    return rank_of_label[labels.long()]
 
 
 def fragment_sizes(labels: torch.Tensor) -> list[int]:
