@@ -24,7 +24,7 @@ import torch  # noqa: E402
 
 from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
 from fracture_gs.mpm.output import PARTICLES_FILE, atomic_write, frame_file_name, load_frame  # noqa: E402
-from fracture_gs.viewer.splats import PIECE_PALETTE, SMALL_PIECE_RGB  # noqa: E402
+from fracture_gs.viewer.splats import piece_colours  # noqa: E402
 
 
 def fragment_colours(labels: np.ndarray, obj_id: np.ndarray) -> tuple[np.ndarray, int]:
@@ -32,10 +32,9 @@ def fragment_colours(labels: np.ndarray, obj_id: np.ndarray) -> tuple[np.ndarray
     holding >= 1 % of its object's particles gets tab20 colour i (piece_ranks), the rest grey; and
     the number of such fragments."""
     ranks = piece_ranks(torch.from_numpy(labels), torch.from_numpy(obj_id)).numpy()
-    colours = np.tile(np.array([*SMALL_PIECE_RGB, 0.35]), (labels.size, 1))
-    counted = ranks >= 0
-    colours[counted, :3] = PIECE_PALETTE[ranks[counted] % len(PIECE_PALETTE)]
-    colours[counted, 3] = 1.0
+    colours = np.empty((labels.size, 4))
+    colours[:, :3] = piece_colours(ranks)
+    colours[:, 3] = np.where(ranks >= 0, 1.0, 0.35)   # small pieces faded
     return colours, int(ranks.max()) + 1 if ranks.size else 0
 
 

@@ -80,14 +80,19 @@ class ObjectSplats:
         buffer = self.buffer.copy()
         rgba = self.rgba
         if pieces:
-            rgb = np.where((self.piece_rank >= 0)[:, None],
-                           PIECE_PALETTE[np.maximum(self.piece_rank, 0) % len(PIECE_PALETTE)],
-                           np.asarray(SMALL_PIECE_RGB))
-            rgba[:, :3] = to_uint8(rgb)
+            rgba[:, :3] = to_uint8(piece_colours(self.piece_rank))
         if highlight:
             rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
         buffer[:, 7] = rgba.view(np.uint32).reshape(-1)
         return buffer
+
+
+def piece_colours(piece_rank: np.ndarray) -> np.ndarray:
+    """RGB (N,3) in [0,1] of fragment ranks (:func:`fracture_gs.mpm.fragments.piece_ranks`):
+    :data:`PIECE_PALETTE` by rank, :data:`SMALL_PIECE_RGB` where the rank is -1."""
+    return np.where((piece_rank >= 0)[:, None],
+                    PIECE_PALETTE[np.maximum(piece_rank, 0) % len(PIECE_PALETTE)],
+                    np.asarray(SMALL_PIECE_RGB))
 
 
 def to_uint8(values: np.ndarray) -> np.ndarray:
@@ -177,5 +182,6 @@ def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: floa
             for i in range(object_count)]
 
 
-__all__ = ["HIGHLIGHT_RGB", "PIECE_PALETTE", "SMALL_PIECE_RGB", "ObjectSplats", "SplatFrame", "VIEWER_EXTENT", "dc_colours",
-           "object_splats", "pack_splats", "to_uint8", "unit_scale_for"]
+__all__ = ["HIGHLIGHT_RGB", "PIECE_PALETTE", "SMALL_PIECE_RGB", "ObjectSplats", "SplatFrame",
+           "VIEWER_EXTENT", "dc_colours", "object_splats", "pack_splats", "piece_colours", "to_uint8",
+           "unit_scale_for"]
