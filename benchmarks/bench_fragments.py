@@ -152,20 +152,15 @@ def main() -> None:
     for name, (*_, settings) in BLOCKS.items():
         if name not in wanted:
             continue
+        if args.speed_factors:  # (fragments, speed factor) of each run
+            runs = [(True, factor) for factor in args.speed_factors]
+        elif args.speeds:
+            runs = [(fragments, speed / BLOCKS[name][0]) for speed in args.speeds for fragments in settings]
+        else:
+            runs = [(fragments, 1.0) for fragments in settings]
         for seed in seeds:
-            def one(fragments: bool, factor: float = 1.0) -> None:
+            for fragments, factor in runs:
                 record(block_result(name, fragments, args.grid, args.duration, factor, seed, args.ground_friction))
-
-            if args.speed_factors:
-                for factor in args.speed_factors:
-                    one(True, factor)
-            elif args.speeds:
-                for speed in args.speeds:
-                    for fragments in settings:
-                        one(fragments, speed / BLOCKS[name][0])
-            else:
-                for fragments in settings:
-                    one(fragments)
     sweep = bool(args.speed_factors or args.speeds)
     if "bar" in wanted and not sweep:
         for fragments in (True, False):

@@ -61,14 +61,14 @@ def main(argv: list[str] | None = None) -> int:
     if times[0] <= 0:
         print(f"error: times must be > 0, got {times[0]}", file=sys.stderr)
         return 2
-    if args.jitter_seed is not None and args.jitter_seed < 0 or not args.ground_friction >= 0:
+    if (args.jitter_seed is not None and args.jitter_seed < 0) or not args.ground_friction >= 0:
         print("error: --jitter-seed and --ground-friction must be >= 0", file=sys.stderr)
         return 2
     speed, E, density, alpha0, beta, _ = BLOCKS[args.scene]
     solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=args.grid,
                         fragments=not args.no_fragments, jitter_seed=args.jitter_seed,
                         ground_friction=args.ground_friction)
-    spacing = 0.5 / args.grid   # particle spacing dx / 2 (domain of 1 m)
+    spacing = solver.domain.dx / 2   # the particle spacing of block_drop
     layer = middle_layer(solver.state_in_input_order().x.numpy()[:, 1],
                          spacing if args.jitter_seed is not None else 0.0)
     n = len(solver.particles)
