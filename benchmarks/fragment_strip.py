@@ -23,7 +23,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
-from fracture_gs.mpm.output import PARTICLES_FILE, atomic_write, frame_file_name, load_frame  # noqa: E402
+from fracture_gs.mpm.output import (PARTICLES_FILE, OutputError, atomic_write, frame_file_name,  # noqa: E402
+                                    load_frame)
 from fracture_gs.viewer.splats import piece_colours  # noqa: E402
 
 
@@ -47,11 +48,14 @@ def main() -> None:
     parser.add_argument("--view", type=float, nargs=2, default=(20.0, -60.0), help="elevation, azimuth (degrees)")
     parser.add_argument("--max-points", type=int, default=40_000, help="subsample larger frames for drawing")
     args = parser.parse_args()
-    frames = [load_frame(args.sim / "frames" / frame_file_name(f)) for f in args.frames]
+    try:
+        frames = [load_frame(args.sim / "frames" / frame_file_name(f)) for f in args.frames]
+        with np.load(args.sim / PARTICLES_FILE) as particles:
+            obj_id = particles["obj_id"].astype(np.int64)
+    except (OutputError, OSError, KeyError, ValueError) as error:   # one line, not a traceback
+        parser.exit(2, f"error: {error}\n")
     if any("fragment_id" not in frame for frame in frames):
-        raise SystemExit(f"{args.sim}: frames have no fragment_id (simulated before issue 14?)")
-    with np.load(args.sim / PARTICLES_FILE) as particles:
-        obj_id = particles["obj_id"].astype(np.int64)
+        parser.exit(2, f"error: {args.sim}: frames have no fragment_id (simulated before issue 14?)\n")
     everything = np.concatenate([frame["x"] for frame in frames])
     lower, upper = everything.min(0), everything.max(0)
     centre, half = (lower + upper) / 2, (upper - lower).max() / 2 * 1.05
