@@ -6,9 +6,10 @@
 Simulates one block scene of ``bench_fragments.py`` (same builder, grid and settings) and draws,
 at each time, the particles of the block's middle lattice layer (chosen in the rest
 configuration, so the same particles in every panel) seen from the side: top row coloured by
-NACC α (fixed scale; α >= 0 is the latched fracture flag), bottom row by fragment (pieces with
->= 1 % of the particles in their own colour, as ``fragment_strip.py``). Prints one JSON line per
-time: pieces >= 2 %, fractured share, height of the block.
+NACC α (fixed scale; α >= 0: cohesion gone, the fracture flag latches; α >= 0.005: damaged for
+the partition), bottom row by fragment (pieces with >= 1 % of the particles in their own colour,
+as ``fragment_strip.py``). Prints one JSON line per time: pieces >= 2 %, fractured share, height
+of the block.
 """
 from __future__ import annotations
 

@@ -8,6 +8,8 @@ benchmarks/bench_mpm.py.
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 import textwrap
 
 import numpy as np
@@ -17,10 +19,10 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
-from fracture_gs.mpm.fragment_scenes import colliding_spheres, precracked_bar
+from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes, piece_ranks
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
-from fracture_gs.mpm.types import BLOCK, Domain
+from fracture_gs.mpm.types import BLOCK, ContactSettings, Domain
 from kernel_devices import KERNEL_DEVICES
 from thread_counts import last_lines_per_thread_count
 
@@ -49,12 +51,12 @@ def cracked_particles(seed: int, n_grids: int = 2):
     x = (lattice + 0.3 * spacing * torch.randn(lattice.shape, generator=gen)).float().contiguous()
     n = x.shape[0]
     grid_id = (x[:, 1] > 0.5 + 0.2 * (x[:, 2] - 0.5)).to(torch.int32)
-    fractured = ((x[:, 0] - 0.5).abs() < 0.6 * spacing) | (torch.rand(n, generator=gen) < 0.01)
+    damaged = ((x[:, 0] - 0.5).abs() < 0.6 * spacing) | (torch.rand(n, generator=gen) < 0.01)
     particles = {
         "x": x, "v": torch.randn(n, 3, generator=gen), "C": 3.0 * torch.randn(n, 3, 3, generator=gen),
         "stress": 1e3 * torch.randn(n, 3, 3, generator=gen), "mass": 0.5 + torch.rand(n, generator=gen),
         "rest_volume": 1e-4 * (0.5 + torch.rand(n, generator=gen)), "grid_id": grid_id.contiguous(),
-        "fractured": fractured.contiguous(),
+        "damaged": damaged.contiguous(),
     }
     return geometry, particles
 
@@ -84,7 +86,7 @@ def compiled_partition(device: str, geometry: GridGeometry, p: dict, dt: float, 
     bins = type(bins)(*(getattr(bins, f) .to(device) for f in bins.__dataclass_fields__))
     fields = GridFields.zeros(fields_geo, torch.device(device), with_contact=True, with_fragments=True)
     ops.p2g(bins, *(on[k] for k in P2G_KEYS), on["grid_id"], fields_geo, dt, fields, backend="cpp",
-            fractured=on["fractured"])
+            damaged=on["damaged"])
     after_p2g = cast(fields, torch.float32)
     gradient = ops.fragment_reference(bins, on["x"], on["grid_id"], geometry, 1e-12, split_gradient, fields,
                                       backend="cpp")
@@ -115,9 +117,9 @@ def test_fragment_kernels_match_reference(seed, device):
     twin = GridFields.zeros(field_geometry(geometry), CPU, with_contact=True, with_fragments=True)
     twin = cast(twin, torch.float64)
     reference.p2g(*(p[k].double() for k in P2G_KEYS), p["grid_id"], field_geometry(geometry), dt, twin,
-                  p["fractured"])
+                  p["damaged"])
     assert rel_err(p2g_fields.damage[:K][touched], twin.damage[:K][touched]) < REL_TOL
-    assert float(twin.damage.sum()) == pytest.approx(float((p["mass"].double() * p["fractured"]).sum()), rel=1e-10)
+    assert float(twin.damage.sum()) == pytest.approx(float((p["mass"].double() * p["damaged"]).sum()), rel=1e-10)
 
     # 2. Damage gradients and references (the twin reads the compiled P2G fields).
     twin_ref = cast(p2g_fields, torch.float32)
@@ -160,7 +162,7 @@ def test_fragment_kernels_match_reference(seed, device):
     parted.velocity.copy_(torch.randn(parted.velocity.shape, generator=gen))
     frag = FragmentFields(gradient, ref_fields.reference, split_particle, split_gradient)
     state = (p["x"], torch.eye(3).expand(len(p["x"]), 3, 3).contiguous(), torch.full((len(p["x"]),), -0.01),
-             p["fractured"], p["grid_id"], torch.zeros(len(p["x"]), dtype=torch.int32))
+             p["damaged"], p["grid_id"], torch.zeros(len(p["x"]), dtype=torch.int32))  # as the fracture flags
     from fracture_gs.mpm.materials import MaterialTable, NACCMaterial
     table = MaterialTable([NACCMaterial(E=1e4, nu=0.3, density=1, alpha0=-0.01, beta=0.5, xi=1, M=2.36)]).table(CPU)
     compiled = ops.g2p(*(t.to(device) for t in state), table.to(device), cast(parted, torch.float32, torch.device(device)),
@@ -195,14 +197,14 @@ def test_partition_empties_side_a_where_every_particle_is_on_side_b():
     p = {"x": x.contiguous(), "v": torch.randn(n, 3, generator=gen), "C": torch.randn(n, 3, 3, generator=gen),
          "stress": 1e2 * torch.randn(n, 3, 3, generator=gen), "mass": 0.5 + torch.rand(n, generator=gen),
          "rest_volume": 1e-4 * torch.ones(n), "grid_id": torch.zeros(n, dtype=torch.int32),
-         "fractured": torch.ones(n, dtype=torch.bool)}
+         "damaged": torch.ones(n, dtype=torch.bool)}
     gradient = torch.tensor([[-1.0 / dx, 0.0, 0.0]]).repeat(n, 1)
     gradient[0] = torch.tensor([1.0 / dx, 0.0, 0.0])                  # the reference: side A
     split_gradient, dt = 0.25 / dx, 1e-4
     bins = ops.bin_particles(p["x"], p["grid_id"], geometry, backend="cpp")
     fields = GridFields.zeros(field_geometry(geometry), CPU, with_contact=True, with_fragments=True)
     ops.p2g(bins, *(p[k] for k in P2G_KEYS), p["grid_id"], field_geometry(geometry), dt, fields, backend="cpp",
-            fractured=p["fractured"])
+            damaged=p["damaged"])
     p2g_mass = fields.mass[0].clone()
     norm_sq_bits = int(torch.tensor([float(gradient[0].square().sum())]).view(torch.int32))
     fields.reference[0][p2g_mass > 0] = norm_sq_bits << 32              # particle 0 references every node
@@ -307,6 +309,33 @@ def test_precracked_bar_has_one_fractured_layer_in_the_middle(grid, length):
     assert int((half < 0).sum()) == int((half > 0).sum())
     fractured = solver.state_in_input_order().fractured
     assert bool(fractured[half == 0].all()) and not bool(fractured[half != 0].any())
+
+
+def test_damage_follows_the_nacc_state_not_the_latched_fracture_flag():
+    """The partition's damage D_p: current α at least the material's fracture threshold (0 here)
+    plus contact.damage_dilation. A particle compacted back below it (NACC's cohesion returns) is
+    not damaged although its fracture flag stays latched; an elastic particle never is."""
+    solver, half = precracked_bar(grid=32, length=0.3, width=0.1, backend="reference")
+    dilation = solver.contact.damage_dilation
+    assert dilation > 0
+    half_now = half.long()[solver.input_index]  # half of each particle in the solver's order
+    slab, strong = torch.nonzero(half_now == 0).flatten(), torch.nonzero(half_now != 0).flatten()
+    assert bool(solver.damaged()[slab].all()) and not bool(solver.damaged()[strong].any())  # α0 0.5 / −5
+    alpha = solver.state.alpha.clone()
+    alpha[strong[0]], alpha[strong[1]] = 0.999 * dilation, 1.001 * dilation  # lost cohesion, opened: only [1]
+    alpha[slab[0]] = -0.1                                                     # compacted again
+    solver.state = dataclasses.replace(solver.state, alpha=alpha)
+    damaged = solver.damaged()
+    assert not bool(damaged[strong[0]]) and bool(damaged[strong[1]])
+    assert not bool(damaged[slab[0]]) and bool(solver.state.fractured[slab[0]])  # the flag stays latched
+    assert int(damaged.sum()) == int((half == 0).sum())                         # −1 slab, +1 strong
+
+    elastic = block_drop(6.0, E=1e4, density=100.0, alpha0=None, grid=16, backend="reference")
+    elastic.state = dataclasses.replace(elastic.state, alpha=torch.full_like(elastic.state.alpha, 10.0))
+    assert not bool(elastic.damaged().any())
+    for bad in (-0.01, math.inf, math.nan):
+        with pytest.raises(ValueError, match="damage_dilation"):
+            ContactSettings(damage_dilation=bad)
 
 
 @pytest.mark.parametrize("fragments", [True, False])

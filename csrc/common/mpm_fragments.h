@@ -3,8 +3,10 @@
 // Shared by the CPU and CUDA kernels; see docs/design_mpm.md "Fragments".
 //
 // Per substep, for every object grid g (K of them; field A of g is grid g, field B is grid K + g):
-//   1. P2G also scatters m_p D_p (damage D_p = 1 once the particle's fracture flag latched, else
-//      0), so D_i = sum w m D / sum w m is the mass-weighted damage at node i (in [0, 1]).
+//   1. P2G also scatters m_p D_p (damage D_p = 1 where the particle's damage flag is set, else 0;
+//      the solver sets it where the current alpha is at least the material's fracture threshold
+//      plus contact.damage_dilation), so D_i = sum w m D / sum w m is the mass-weighted damage at
+//      node i (in [0, 1]).
 //   2. Every particle gathers its damage gradient grad D_p = sum_i D_i grad w_ip, and every node
 //      keeps, among the particles whose stencil reaches it, the one with the largest |grad D_p|
 //      (its "reference"; ties broken by the particle index, so the choice is order-free: a max).
@@ -25,9 +27,10 @@
 
 namespace fgs {
 
-// Damage of a particle: its latched fracture flag (alpha reached the material's threshold, the
-// NACC cohesion is gone). The grid transfer of step 1 smooths it over the B-spline support.
-HOST_DEVICE inline float particle_damage(uint8_t fractured) { return fractured ? 1.f : 0.f; }
+// Damage of a particle from its damage flag (set by the solver where NACC's cohesion is gone and
+// the material has opened: fracture_gs.mpm.solver.CollisionMPM.damaged). The grid transfer of
+// step 1 smooths it over the B-spline support.
+HOST_DEVICE inline float particle_damage(uint8_t damaged) { return damaged ? 1.f : 0.f; }
 
 // Fragment settings and fields, as the kernels see them.
 struct FragmentView {

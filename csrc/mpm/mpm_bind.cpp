@@ -276,7 +276,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
          const Tensor& mass, const Tensor& rest_volume, const Tensor& grid_id, const std::vector<double>& lower,
          double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt, Tensor grid_mass,
          Tensor grid_momentum, std::optional<Tensor> grid_mass_gradient, std::optional<Tensor> grid_position_moment,
-         std::optional<Tensor> fractured, std::optional<Tensor> grid_damage, std::optional<Tensor> grid_reference) {
+         std::optional<Tensor> damaged, std::optional<Tensor> grid_damage, std::optional<Tensor> grid_reference) {
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
@@ -292,19 +292,19 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
               "p2g: particle arrays have inconsistent sizes");
   GridArrays grid = grid_arrays(geo, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
   for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
-  TORCH_CHECK(fractured.has_value() == grid_damage.has_value() && fractured.has_value() == grid_reference.has_value(),
-              "p2g: give fractured, grid_damage and grid_reference together (fragments) or none");
-  if (fractured) {
-    check_tensor(*fractured, "fractured", torch::kBool, x);
-    TORCH_CHECK(fractured->numel() == n, "p2g: fractured has the wrong size");
+  TORCH_CHECK(damaged.has_value() == grid_damage.has_value() && damaged.has_value() == grid_reference.has_value(),
+              "p2g: give damaged, grid_damage and grid_reference together (fragments) or none");
+  if (damaged) {
+    check_tensor(*damaged, "damaged", torch::kBool, x);
+    TORCH_CHECK(damaged->numel() == n, "p2g: damaged has the wrong size");
     check_grid(*grid_damage, "grid_damage", 1, geo, x);
     check_tensor(*grid_reference, "grid_reference", torch::kInt64, x);
     TORCH_CHECK(grid_reference->numel() == (int64_t)geo.n_grids * geo.shape.nodes(), "grid_reference has the wrong size");
   }
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(),
-                   fractured ? reinterpret_cast<const uint8_t*>(fractured->data_ptr<bool>()) : nullptr};
-  if (fractured) {
+                   damaged ? reinterpret_cast<const uint8_t*>(damaged->data_ptr<bool>()) : nullptr};
+  if (damaged) {
     grid.damage = grid_damage->data_ptr<float>();
     grid.reference = grid_reference->data_ptr<int64_t>();
   }

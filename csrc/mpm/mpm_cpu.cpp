@@ -259,7 +259,7 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
-    const float damage = p.fractured ? m * particle_damage(p.fractured[q]) : 0.f;
+    const float damage = p.damaged ? m * particle_damage(p.damaged[q]) : 0.f;
     const ParticleRecords records = particle_records(m, p.v + 3 * q, A, damage);  // csrc/mpm/p2g_records.h
     const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
     for (int a = 0; a < 3; ++a) {

@@ -79,7 +79,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
         }
       }
       sp.mass = p.mass[q];
-      sp.damage = p.fractured ? sp.mass * particle_damage(p.fractured[q]) : 0.f;
+      sp.damage = p.damaged ? sp.mass * particle_damage(p.damaged[q]) : 0.f;
       for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
       apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
     }

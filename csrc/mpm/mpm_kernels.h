@@ -46,7 +46,7 @@ struct ParticleArrays {  // inputs of P2G, N rows each
   const float* mass;
   const float* rest_volume;
   const int32_t* grid_id;
-  const uint8_t* fractured;  // latched fracture flags (damage for the fragment partition), or nullptr
+  const uint8_t* damaged;  // damage flags of the fragment partition (D_p = 1 where set), or nullptr
 };
 
 struct GridArrays {  // n_grids * nodes rows each

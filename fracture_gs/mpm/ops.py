@@ -26,23 +26,24 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 
 def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         mass: torch.Tensor, rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
-        dt: float, grid: GridFields, backend: str = "auto", fractured: torch.Tensor | None = None) -> None:
+        dt: float, grid: GridFields, backend: str = "auto", damaged: torch.Tensor | None = None) -> None:
     """Particle-to-grid transfer into ``grid`` (mass, momentum; mass gradient and position moment for
     contact).
 
     The compiled CPU kernel sums mass gradient and position moment on contact blocks only (the
     contact pass reads nothing else); the torch reference and CUDA fill them everywhere. With
-    ``fractured`` (fragments), it also sums Σ w m D into ``grid.damage``, clears ``grid.reference``
+    ``damaged`` (fragments: bool per particle, D_p = 1 where set, :meth:`CollisionMPM.damaged`), it
+    also sums Σ w m D into ``grid.damage``, clears ``grid.reference``
     on the touched blocks, and sums mass gradient and position moment everywhere (the two sides of
     a split node meet through the contact pass, wherever it is).
     """
-    damage_args = (fractured, grid.damage, grid.reference) if fractured is not None else (None, None, None)
+    damage_args = (damaged, grid.damage, grid.reference) if damaged is not None else (None, None, None)
     if use_compiled(x.device, backend):
         compiled_module().mpm_p2g(bins.as_list(), x, v, C, stress, mass, rest_volume, grid_id,
                                   *geometry.args(), dt, grid.mass, grid.momentum, grid.mass_gradient,
                                   grid.position_moment, *damage_args)
     else:
-        reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid, fractured)
+        reference.p2g(x, v, C, stress, mass, rest_volume, grid_id, geometry, dt, grid, damaged)
 
 
 def grid_update(bins: ParticleBins, geometry: GridGeometry, dt: float, gravity: tuple[float, float, float],
@@ -83,7 +84,7 @@ def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tenso
     """Fragments, step 2: every particle's damage gradient ∇D_p = Σ D_i ∇w_ip (returned, (N, 3)) and
     every node's reference key (``grid.reference``: the largest |∇D_p| reaching it, stored only where
     it reaches ``split_gradient`` (1/length), i.e. where it splits the node; 0 elsewhere).
-    ``geometry`` names the K object grids; P2G must have run with ``fractured``."""
+    ``geometry`` names the K object grids; P2G must have run with ``damaged``."""
     if use_compiled(x.device, backend):
         return compiled_module().mpm_fragment_reference(bins.as_list(), x, grid_id, *geometry.args(), mass_eps,
                                                         split_gradient, grid.mass, grid.damage, grid.reference)

@@ -91,9 +91,9 @@ def bin_particles(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry
 
 def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor, mass: torch.Tensor,
         rest_volume: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, dt: float,
-        grid: GridFields, fractured: torch.Tensor | None = None) -> None:
+        grid: GridFields, damaged: torch.Tensor | None = None) -> None:
     """Scatter mass, APIC momentum + stress force and mass gradients onto each particle's grid
-    (with ``fractured``: also Σ w m D into ``grid.damage``, and ``grid.reference`` cleared)."""
+    (with ``damaged``: also Σ w m D into ``grid.damage``, and ``grid.reference`` cleared)."""
     index, weight, gradient, dpos = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
     affine = mass[:, None, None] * C - (4.0 * dt / geometry.dx ** 2) * rest_volume[:, None, None] * stress
@@ -110,11 +110,11 @@ def p2g(x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
         grid.position_moment.zero_()
         moment = -(weight * mass[:, None])[..., None] * dpos   # w m (x_p − x_i)
         grid.position_moment.view(-1, 3).index_add_(0, index.flatten(), moment.reshape(-1, 3))
-    if fractured is not None:
+    if damaged is not None:
         assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
         grid.damage.zero_()
         grid.reference.zero_()
-        damage = mass * fractured.to(mass.dtype)                 # m D, D = the fracture flag
+        damage = mass * damaged.to(mass.dtype)                   # m D, D = 1 where damaged
         grid.damage.view(-1).index_add_(0, index.flatten(), (weight * damage[:, None]).flatten())
 
 

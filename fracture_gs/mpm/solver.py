@@ -85,6 +85,8 @@ class CollisionMPM:
                                      with_fragments=self.fragments)
         self._split_particle: torch.Tensor | None = None  # (N) 1: read a split node in the latest substep
         self._damage_started = False  # some particle's fracture flag is set (flags latch: stays True)
+        # α from which a particle of each material counts as damaged for the partition (inf: never).
+        self.damage_alpha = (self.material_table[:, COLUMN["alpha_threshold"]] + self.contact.damage_dilation).contiguous()
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -140,6 +142,15 @@ class CollisionMPM:
         None (no node split). Cheaper to keep than ``last_split_particles`` inside a timed loop."""
         return self._split_particle
 
+    def damaged(self) -> torch.Tensor:
+        """(N) bool, solver order: the particles the fragment partition treats as damaged (D_p = 1),
+        those whose current α is at least their material's fracture threshold plus
+        ``contact.damage_dilation`` (cohesion gone and the material opened; never for elastic
+        materials). Unlike the latched ``fractured`` flag this follows the state: NACC's cohesion
+        returns where compaction lowers α again."""
+        threshold = torch.index_select(self.damage_alpha, 0, self.particles.material_id)
+        return (self.state.alpha >= threshold).contiguous()
+
     def stable_dt(self) -> float:
         """CFL time step: cfl * dx / (c_max + |v|_max)."""
         return self.cfl * self.geometry.dx / (self.max_wave_speed + self.max_speed)
@@ -152,11 +163,12 @@ class CollisionMPM:
         except RuntimeError as exc:
             raise SimulationBlowUp(f"t={s.time:.6g}s: {exc}") from None
         fields = self.field_geometry
-        if self.fragments and not self._damage_started:  # nothing to split before any damage
+        if self.fragments and not self._damage_started:  # nothing to split before any fracture
+            # (a damaged particle has its fracture flag set: damage needs α above the threshold)
             self._damage_started = bool(s.fractured.any())
         partition = self.fragments and self._damage_started
         ops.p2g(bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, fields, dt, g, backend,
-                fractured=s.fractured if partition else None)
+                damaged=self.damaged() if partition else None)
         field_bins, fragments = bins, None
         if partition:
             field_bins, fragments = self._partition(bins, dt)

@@ -14,6 +14,7 @@ CONTACT_GAP_CELLS = 0.9  # default ContactSettings.max_gap (see docs/design_mpm.
 # Default ContactSettings.split_gradient: a node is split into two crack sides where the largest
 # particle damage gradient reaching it is at least this, in 1/cells (docs/design_mpm.md, fragments).
 SPLIT_GRADIENT_CELLS = 0.25
+DAMAGE_DILATION = 0.005
 
 
 class SimulationBlowUp(RuntimeError):
@@ -61,6 +62,11 @@ class ContactSettings:
     # object (the paper's behaviour, kept for the ablation).
     fragments: bool = DEFAULT_FRAGMENTS
     split_gradient: float = SPLIT_GRADIENT_CELLS  # in 1/cells (|grad D| dx at which a node splits)
+    # A particle is damaged for the partition (D_p = 1) while its current α exceeds its material's
+    # fracture threshold by at least this much: cohesion lost and the material opened by that
+    # plastic volume dilation (α grows by log J_p). Compaction lowers α again and NACC's cohesion
+    # returns with it, so the state, not the latched fracture flag, says where a crack is open.
+    damage_dilation: float = DAMAGE_DILATION
 
     def __post_init__(self) -> None:
         if self.mode not in ("collision", "mls"):
@@ -74,6 +80,8 @@ class ContactSettings:
             raise ValueError(f"contact max_gap must be > 0 (in cells), got {self.max_gap}")
         if not 0.0 < float(self.split_gradient) < math.inf:
             raise ValueError(f"contact split_gradient must be a finite number > 0 (1/cells), got {self.split_gradient}")
+        if not 0.0 <= float(self.damage_dilation) < math.inf:
+            raise ValueError(f"contact damage_dilation must be a finite number >= 0, got {self.damage_dilation}")
 
 
 @dataclass
