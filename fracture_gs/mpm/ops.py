@@ -33,9 +33,9 @@ def p2g(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, s
     The compiled CPU kernel sums mass gradient and position moment on contact blocks only (the
     contact pass reads nothing else); the torch reference and CUDA fill them everywhere. With
     ``damaged`` (fragments: bool per particle, D_p = 1 where set, :meth:`CollisionMPM.damaged`), it
-    also sums Σ w m D into ``grid.damage``, clears ``grid.reference``
-    on the touched blocks, and sums mass gradient and position moment everywhere (the two sides of
-    a split node meet through the contact pass, wherever it is).
+    also sums Σ w m D into ``grid.damage``, clears ``grid.reference`` on the touched blocks, and
+    sums mass gradient and position moment everywhere (the two sides of a split node meet through
+    the contact pass, wherever it is).
     """
     damage_args = (damaged, grid.damage, grid.reference) if damaged is not None else (None, None, None)
     if use_compiled(x.device, backend):
