@@ -35,6 +35,7 @@ import torch
 
 from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import fragment_ids, fragment_sizes
+from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS
 from scipy.spatial import cKDTree
 
 PIECE_SHARE = 0.02  # acceptance 1: pieces of >= 2 % of the particles
@@ -69,13 +70,15 @@ def run(solver, duration: float, samples: int = 30) -> dict:
 
 
 def block_result(name: str, fragments: bool, grid: int, duration: float, speed_factor: float = 1.0,
-                 jitter_seed: int | None = None, ground_friction: float = 0.3) -> dict:
+                 jitter_seed: int | None = None, ground_friction: float = 0.3,
+                 split_gradient: float = SPLIT_GRADIENT_CELLS) -> dict:
     """One block drop of scene ``name`` at ``speed_factor`` times its speed (a lattice block, or
-    sampled as a YAML box primitive with ``jitter_seed``)."""
+    sampled as a YAML box primitive with ``jitter_seed``), the partition splitting nodes from
+    ``split_gradient`` (1/cells)."""
     scene_speed, E, density, alpha0, beta, _ = BLOCKS[name]
     speed = speed_factor * scene_speed
     solver = block_drop(speed, E=E, density=density, alpha0=alpha0, beta=beta, grid=grid, fragments=fragments,
-                        jitter_seed=jitter_seed, ground_friction=ground_friction)
+                        jitter_seed=jitter_seed, ground_friction=ground_friction, split_gradient=split_gradient)
     out = run(solver, duration)
     sizes = fragment_sizes(solver.fragment_ids())
     n = len(solver.particles)
@@ -88,7 +91,8 @@ def block_result(name: str, fragments: bool, grid: int, duration: float, speed_f
                                                solver.fragment_radius)) if bool(intact.any()) else []
     out.update(scene=name, fragments=fragments, particles=n,
                sampling="lattice" if jitter_seed is None else f"jittered, seed {jitter_seed}",
-               ground_friction=ground_friction, speed=round(speed, 6), E=E, density=density, alpha0=alpha0, beta=beta,
+               ground_friction=ground_friction, split_gradient=split_gradient, speed=round(speed, 6), E=E,
+               density=density, alpha0=alpha0, beta=beta,
                fractured=round(float(solver.state.fractured.float().mean()), 4),
                pieces_2pct=len(pieces), piece_sizes_2pct=pieces, largest_pieces=sizes[:8],
                components=len(sizes), fragments_1pct=int(solver.diagnostics()["fragments"]),
@@ -131,6 +135,9 @@ def main() -> None:
                              "seeds instead of as a lattice")
     parser.add_argument("--ground-friction", type=float, default=0.3,
                         help="friction of the ground under the blocks (the scenes' 0.3; a YAML ground's default is 0.5)")
+    parser.add_argument("--split-gradient", type=float, default=SPLIT_GRADIENT_CELLS,
+                        help=f"the blocks' split threshold, ContactSettings.split_gradient in 1/cells "
+                             f"(default {SPLIT_GRADIENT_CELLS})")
     args = parser.parse_args()
     if args.speed_factors and args.speeds:
         parser.error("give --speed-factors or --speeds, not both")
@@ -140,6 +147,8 @@ def main() -> None:
         parser.error("--jitter-seeds must be >= 0")
     if not args.ground_friction >= 0:
         parser.error("--ground-friction must be >= 0")
+    if not 0 < args.split_gradient < float("inf"):
+        parser.error("--split-gradient must be a finite number > 0")
     seeds = args.jitter_seeds if args.jitter_seeds else [None]
     torch.set_num_threads(max(1, torch.get_num_threads()))
     wanted = set(args.only) if args.only else set(BLOCKS) | {"momentum", "bar"}
@@ -160,7 +169,8 @@ def main() -> None:
             runs = [(fragments, 1.0) for fragments in settings]
         for seed in seeds:
             for fragments, factor in runs:
-                record(block_result(name, fragments, args.grid, args.duration, factor, seed, args.ground_friction))
+                record(block_result(name, fragments, args.grid, args.duration, factor, seed, args.ground_friction,
+                                    args.split_gradient))
     sweep = bool(args.speed_factors or args.speeds)
     if "bar" in wanted and not sweep:
         for fragments in (True, False):

@@ -23,7 +23,7 @@ from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.scene import sample_primitive
 from fracture_gs.mpm.solver import CollisionMPM
-from fracture_gs.mpm.types import ContactSettings, Domain, GroundBoundary
+from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS, ContactSettings, Domain, GroundBoundary
 
 GROUND_HEIGHT = 0.1
 
@@ -39,11 +39,13 @@ def jittered_box(centre: Sequence[float], size: float, dx: float, seed: int) -> 
 
 def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, beta: float = 0.5,
                grid: int = 64, size: float = 0.2, fragments: bool = True, ground_friction: float = 0.3,
-               backend: str = "auto", jitter_seed: int | None = None) -> CollisionMPM:
+               backend: str = "auto", jitter_seed: int | None = None,
+               split_gradient: float = SPLIT_GRADIENT_CELLS) -> CollisionMPM:
     """A cube of edge ``size`` (8 particles per cell) falling at ``speed`` onto the ground (its
     bottom face half a spacing above it), under gravity. ``alpha0=None``: an elastic block. The
     particles form a lattice, or with ``jitter_seed`` are sampled as a YAML scene with that
-    ``seed`` samples a box primitive (:func:`jittered_box`)."""
+    ``seed`` samples a box primitive (:func:`jittered_box`). ``split_gradient``: the partition's
+    split threshold (``ContactSettings.split_gradient``, 1/cells)."""
     domain = Domain((0, 0, 0), (1, 1, 1), grid)
     spacing = domain.dx / 2
     centre = (0.5, 0.5, GROUND_HEIGHT + size / 2 + spacing / 2)
@@ -53,7 +55,8 @@ def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, 
                 NACCMaterial(E=E, nu=0.3, density=density, alpha0=alpha0, beta=beta, xi=1.0, M=2.36))
     particles = particle_set([LatticeBody(block, (0.0, 0.0, -speed), 0, spacing)], [material.density])
     particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
-    return CollisionMPM(particles, [material], domain, contact=ContactSettings(fragments=fragments),
+    return CollisionMPM(particles, [material], domain,
+                        contact=ContactSettings(fragments=fragments, split_gradient=split_gradient),
                         boundaries=[GroundBoundary(height=GROUND_HEIGHT, friction=ground_friction)],
                         gravity=(0.0, 0.0, -9.8), backend=backend)
 

@@ -86,7 +86,8 @@ class CollisionMPM:
         self._split_particle: torch.Tensor | None = None  # (N) 1: read a split node in the latest substep
         self._damage_started = False  # some particle's fracture flag is set (flags latch: stays True)
         # α from which a particle of each material counts as damaged for the partition (inf: never).
-        self.damage_alpha = (self.material_table[:, COLUMN["alpha_threshold"]] + self.contact.damage_dilation).contiguous()
+        self.damage_alpha = (self.material_table[:, COLUMN["alpha_threshold"]]
+                             + self.contact.damage_dilation).contiguous()
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
