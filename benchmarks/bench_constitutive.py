@@ -27,7 +27,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch  # noqa: E402  (after OMP_NUM_THREADS)
 
-from fracture_gs.mpm.materials import ElasticMaterial, MaterialTable, NACCMaterial  # noqa: E402
+from fracture_gs.materials import ElasticMaterial, MaterialTable, NACCMaterial  # noqa: E402
 
 
 def load_extension(path: str) -> ModuleType:

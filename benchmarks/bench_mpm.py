@@ -1,12 +1,14 @@
 """Full Collision-MPM step throughput: compiled backend vs the torch reference (prints JSON).
 
-Scene: two NACC spheres already in contact and driven into each other, so the contact pass and
-the plastic projection both really run. The step is bins + P2G + grid update + contact +
-boundaries + G2P with the NACC return map; the particles are in simulate.py's order and the
-solver's periodic re-sort (every 50 substeps) is part of the timed steps. The compiled backend
-runs twice, without and with ``contact.fragments`` (crack opening inside objects, issue 14): the
-JSON gives both and their ratio (``fragment_cost``), with the share of particles that were
-fractured and that read a split node while timed.
+Scene: two spheres already in contact and driven into each other, so the contact pass and the
+material update both really run. The step is bins + P2G + grid update + contact + boundaries +
+G2P with the material update; the particles are in simulate.py's order and the solver's periodic
+re-sort (every 50 substeps) is part of the timed steps. The compiled backend runs three times:
+NACC spheres without and with ``contact.fragments`` (crack opening inside objects), and brittle
+spheres with fragments, which crack where they press into each other. The JSON gives each and the
+ratios ``fragment_cost`` (NACC with fragments / without) and ``brittle_cost`` (brittle with
+fragments / NACC with fragments), with the share of particles that were fractured and that read a
+split node while timed.
 
     python benchmarks/bench_mpm.py [--grid 128] [--particles 50000 200000] [--device cpu]
 
@@ -28,14 +30,22 @@ import torch
 
 from fracture_gs._backend import compiled_module
 from fracture_gs.mpm.lattice import LatticeBody, lattice_sphere, particle_set
-from fracture_gs.mpm.materials import NACCMaterial
+from fracture_gs.materials import BrittleMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain
 
 
-def two_spheres(n_total: int, grid: int, device: torch.device, backend: str, fragments: bool = False) -> CollisionMPM:
-    """Two touching NACC spheres with ~n_total particles, spacing dx/2, approaching at 6 m/s."""
+MATERIALS = {
+    "nacc": NACCMaterial(E=2e5, nu=0.3, density=1e3, alpha0=-0.01, beta=0.3, xi=1.0, M=2.36),
+    # Impact stress rho c v ~ 5 times the strength at the spheres' 6 m/s: they crack where they meet.
+    "brittle": BrittleMaterial(E=2e5, nu=0.3, density=1e3, strength=1e4, fracture_energy=5.0, weibull_m=6.0),
+}
+
+
+def two_spheres(n_total: int, grid: int, device: torch.device, backend: str, fragments: bool = False,
+                material_name: str = "nacc") -> CollisionMPM:
+    """Two touching spheres of one material with ~n_total particles, spacing dx/2, approaching at 6 m/s."""
     domain = Domain((0, 0, 0), (1, 1, 1), grid)
     spacing = domain.dx / 2
     radius = spacing * (3 * (n_total / 2) / (4 * math.pi)) ** (1 / 3)
@@ -43,7 +53,7 @@ def two_spheres(n_total: int, grid: int, device: torch.device, backend: str, fra
                           spacing),
               LatticeBody(lattice_sphere((0.5 + radius + spacing / 2, 0.5, 0.5), radius, spacing), (-3, 0, 0), 0,
                           spacing)]
-    material = NACCMaterial(E=2e5, nu=0.3, density=1e3, alpha0=-0.01, beta=0.3, xi=1.0, M=2.36)
+    material = MATERIALS[material_name]
     particles = particle_set(bodies, [material.density])
     # The order simulate.py runs with (build_scene): each grid block's particles together.
     particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
@@ -85,13 +95,13 @@ def measure(solvers: list[CollisionMPM], steps: int, repeats: int) -> list[tuple
     return out
 
 
-def result_row(solver: CollisionMPM, backend: str, fragments: bool, steps: int, repeats: int,
+def result_row(solver: CollisionMPM, backend: str, material: str, fragments: bool, steps: int, repeats: int,
                blocks: list[float], split_share: float, alpha_start: torch.Tensor) -> dict:
     """One JSON row: the median block and the range of the blocks."""
     seconds = statistics.median(blocks)
     n_particles = len(solver.particles)
     return {
-        "backend": backend, "fragments": fragments, "particles": n_particles, "steps": steps,
+        "backend": backend, "material": material, "fragments": fragments, "particles": n_particles, "steps": steps,
         "repeats": repeats,
         "ms_per_step": round(1e3 * seconds, 3),
         "particle_steps_per_s": round(n_particles / seconds),
@@ -104,27 +114,36 @@ def result_row(solver: CollisionMPM, backend: str, fragments: bool, steps: int, 
 
 
 def run_timed(n: int, args: argparse.Namespace, device: torch.device,
-              configs: list[tuple[str, bool, int, int]]) -> list[tuple[dict, list[float]]]:
-    """Builds one solver per (backend, fragments, steps, repeats), lets the spheres press into each
-    other (contact and plasticity active), and times them; solvers with the same steps and repeats
-    take turns (measure). Returns (JSON row, block seconds) per config."""
+              configs: list[tuple[str, str, bool, int, int]]) -> list[tuple[dict, list[float]]]:
+    """Builds one solver per (backend, material, fragments, steps, repeats), lets the spheres press
+    into each other (contact and the material update active), and times them; solvers with the same
+    steps and repeats take turns (measure). Returns (JSON row, block seconds) per config."""
     rows: list[tuple[dict, list[float]]] = []
-    groups: dict[tuple[int, int], list[tuple[str, bool]]] = {}
-    for backend, fragments, steps, repeats in configs:
-        groups.setdefault((steps, repeats), []).append((backend, fragments))
+    groups: dict[tuple[int, int], list[tuple[str, str, bool]]] = {}
+    for backend, material, fragments, steps, repeats in configs:
+        groups.setdefault((steps, repeats), []).append((backend, material, fragments))
     for (steps, repeats), members in groups.items():
         solvers, alpha_starts = [], []
-        for backend, fragments in members:
-            solver = two_spheres(n, args.grid, device, backend, fragments)
+        for backend, material, fragments in members:
+            solver = two_spheres(n, args.grid, device, backend, fragments, material)
             for _ in range(5 if backend == "reference" else 40):
                 solver.step(solver.stable_dt())
             solvers.append(solver)
             alpha_starts.append(solver.state.alpha.clone())
-        for (backend, fragments), solver, alpha_start, (blocks, split_share) in zip(
+        for (backend, material, fragments), solver, alpha_start, (blocks, split_share) in zip(
                 members, solvers, alpha_starts, measure(solvers, steps, repeats)):
-            rows.append((result_row(solver, backend, fragments, steps, repeats, blocks, split_share, alpha_start),
-                         blocks))
+            rows.append((result_row(solver, backend, material, fragments, steps, repeats, blocks, split_share,
+                                    alpha_start), blocks))
     return rows
+
+
+def ratio_entry(particles: int, slower: list[float], faster: list[float]) -> dict:
+    """The ratio of the medians of two solvers' blocks, and the median and range of the per-round ratios
+    (the blocks of a round ran back to back, at nearly the same speed of the machine)."""
+    rounds = [a / b for a, b in zip(slower, faster)]
+    return {"particles": particles, "ratio": round(statistics.median(slower) / statistics.median(faster), 3),
+            "round_ratio_median": round(statistics.median(rounds), 3),
+            "round_ratio_range": [round(min(rounds), 3), round(max(rounds), 3)]}
 
 
 def main() -> None:
@@ -139,29 +158,26 @@ def main() -> None:
     parser.add_argument("--skip-reference", action="store_true", help="time the compiled backend only")
     args = parser.parse_args()
     device = torch.device(args.device)
-    results, cost = [], []
+    results, cost, brittle_cost = [], [], []
     for n in args.particles:
-        configs = [] if compiled_module() is None else [("cpp", False, args.steps, args.repeats),
-                                                         ("cpp", True, args.steps, args.repeats)]
+        configs = [] if compiled_module() is None else [("cpp", "nacc", False, args.steps, args.repeats),
+                                                         ("cpp", "nacc", True, args.steps, args.repeats),
+                                                         ("cpp", "brittle", True, args.steps, args.repeats)]
         if not args.skip_reference:
-            configs.append(("reference", False, args.reference_steps, 1))
+            configs.append(("reference", "nacc", False, args.reference_steps, 1))
         rows = run_timed(n, args, device, configs)
         results += [row for row, _ in rows]
-        compiled = {row["fragments"]: blocks for row, blocks in rows if row["backend"] == "cpp"}
-        if len(compiled) == 2:
-            # Ratio of the medians, and the range of the per-round ratios (the two blocks of a
-            # round ran back to back, at nearly the same speed of the machine).
-            rounds = [on / off for off, on in zip(compiled[False], compiled[True])]
-            cost.append({"particles": rows[0][0]["particles"],
-                         "ratio": round(statistics.median(compiled[True]) / statistics.median(compiled[False]), 3),
-                         "round_ratio_median": round(statistics.median(rounds), 3),
-                         "round_ratio_range": [round(min(rounds), 3), round(max(rounds), 3)]})
+        compiled = {(row["material"], row["fragments"]): blocks for row, blocks in rows if row["backend"] == "cpp"}
+        if len(compiled) == 3:
+            particles = rows[0][0]["particles"]
+            cost.append(ratio_entry(particles, compiled[("nacc", True)], compiled[("nacc", False)]))
+            brittle_cost.append(ratio_entry(particles, compiled[("brittle", True)], compiled[("nacc", True)]))
     print(json.dumps({
         "benchmark": "mpm_full_step", "grid": args.grid, "device": str(device),
         "threads": int(compiled_module().openmp_max_threads()) if compiled_module() else 1,
         "torch_threads": torch.get_num_threads(), "results": results,
-        # ms per step with fragments / without, per particle count (issue 14 asks <= 1.4).
-        "fragment_cost": cost}, indent=2))
+        # ms per step of NACC with fragments / without, and of brittle with fragments / NACC with them.
+        "fragment_cost": cost, "brittle_cost": brittle_cost}, indent=2))
 
 
 if __name__ == "__main__":

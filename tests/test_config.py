@@ -42,11 +42,11 @@ def test_valid_scene_fills_defaults() -> None:
     ball, block = config.objects
     assert ball.primitive is not None and ball.primitive.particles_per_cell == 8
     assert ball.transform.scale == 1.0 and ball.transform.rotate_deg == (0.0, 0.0, 0.0)
-    mat = ball.materials[0]
+    mat = ball.materials[0].material
     assert mat.alpha0 == pytest.approx(math.log(0.98))
     assert (mat.beta, mat.xi, mat.M, mat.alpha_threshold) == (0.5, 1.0, 2.36, 0.0)
     assert block.velocity == (0.0, 0.0, 0.0)
-    assert block.materials[0].part == 0 and block.materials[0].alpha0 is None
+    assert block.materials[0].part == 0 and "alpha0" not in block.materials[0].material.to_yaml()
 
 
 def test_to_dict_round_trips_through_yaml(tmp_path: Path) -> None:
@@ -63,7 +63,7 @@ def test_to_dict_round_trips_through_yaml(tmp_path: Path) -> None:
 def test_friction_angle_gives_M() -> None:
     scene = base_scene()
     scene["objects"][0]["materials"][0]["friction_angle"] = 30.0
-    mat = parse_scene(scene).objects[0].materials[0]
+    mat = parse_scene(scene).objects[0].materials[0].material
     assert mat.M == pytest.approx(6 * 0.5 / (3 - 0.5))
 
 
@@ -73,7 +73,7 @@ def test_yaml_1_2_floats_are_numbers(tmp_path: Path) -> None:
     assert "5.0e5" in text
     path = tmp_path / "s.yaml"
     path.write_text(text)
-    assert load_scene(path).objects[0].materials[0].E == 5.0e5
+    assert load_scene(path).objects[0].materials[0].material.E == 5.0e5
 
 
 def test_name_defaults_to_file_stem(tmp_path: Path) -> None:
@@ -114,7 +114,7 @@ MALFORMED = [
     ("objects.0.materials.0.E", True, "objects[0].materials[0].E", "expected a number"),
     ("objects.0.materials.0.E", float("nan"), "objects[0].materials[0].E", "not finite"),
     ("objects.0.materials.0.model", "rubber", "objects[0].materials[0].model",
-     "'rubber' is not one of nacc, elastic"),
+     "'rubber' is not one of elastic, nacc, brittle"),
     ("objects.0.materials.0.Jp0", DELETE, "objects[0].materials[0].alpha0",
      "required key is missing"),
     ("objects.0.materials.0.alpha0", -0.02, "objects[0].materials[0].Jp0", "both given"),

@@ -163,7 +163,7 @@ def test_fragment_kernels_match_reference(seed, device):
     frag = FragmentFields(gradient, ref_fields.reference, split_particle, split_gradient)
     state = (p["x"], torch.eye(3).expand(len(p["x"]), 3, 3).contiguous(), torch.full((len(p["x"]),), -0.01),
              p["damaged"], p["grid_id"], torch.zeros(len(p["x"]), dtype=torch.int32))  # as the fracture flags
-    from fracture_gs.mpm.materials import MaterialTable, NACCMaterial
+    from fracture_gs.materials import MaterialTable, NACCMaterial
     table = MaterialTable([NACCMaterial(E=1e4, nu=0.3, density=1, alpha0=-0.01, beta=0.5, xi=1, M=2.36)]).table(CPU)
     compiled = ops.g2p(*(t.to(device) for t in state), table.to(device), cast(parted, torch.float32, torch.device(device)),
                        geometry, dt, backend="cpp",

@@ -11,11 +11,12 @@ import math
 from dataclasses import fields as dataclass_fields
 
 import pytest
+import numpy as np
 import torch
 
 from fracture_gs.mpm import ops, reference
 from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins, node_coords
-from fracture_gs.mpm.materials import ElasticMaterial, MaterialTable, NACCMaterial
+from fracture_gs.materials import BrittleMaterial, ElasticMaterial, MaterialTable, NACCMaterial
 from fracture_gs.mpm.types import BLOCK, Domain
 from kernel_devices import KERNEL_DEVICES
 
@@ -313,10 +314,11 @@ def material_table() -> torch.Tensor:
 
 
 def g2p_on(device: str, p: dict, F_E, alpha, fractured, material_id, table, fields: GridFields,
-           geometry: GridGeometry, dt: float):
+           geometry: GridGeometry, dt: float, strength: torch.Tensor | None = None):
     """The compiled G2P on ``device``; tensors back on the CPU, the stats as they are."""
     on = [t.to(device) for t in (p["x"], F_E, alpha, fractured, p["grid_id"], material_id, table)]
-    out = ops.g2p(*on, moved(fields, device), geometry, dt, backend="cpp")
+    out = ops.g2p(*on, moved(fields, device), geometry, dt, backend="cpp",
+                  strength=strength.to(device) if strength is not None else None)
     return [t.cpu() for t in out[:7]] + [out[7]]
 
 
@@ -348,6 +350,40 @@ def test_g2p_and_return_map_match_reference(seed, device):
         for name, a, b in zip(names, out[:6], cpu[:6]):
             assert rel_err(a, b) < REL_TOL, name
         assert torch.equal(out[6], cpu[6]) and out[7].clamped == cpu[7].clamped
+
+
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
+def test_g2p_with_brittle_particles_matches_reference(device):
+    """Brittle particles with their own (Weibull) strengths, partly damaged, beside NACC ones: the
+    compiled G2P (series, eigen and SVD tiers of the update) gives the twin's damage and stress."""
+    geometry, p, gen = random_setup(7)
+    n = p["x"].shape[0]
+    bins, fields = contact_grids(7, geometry)
+    glass = BrittleMaterial(E=1e6, nu=0.2, density=50.0, strength=1e4, fracture_energy=1.0, weibull_m=6.0)
+    table = MaterialTable([glass, NACCMaterial(E=2e5, nu=0.4, density=2.0, alpha0=-0.02, beta=0.5, xi=1.0, M=2.36)],
+                          cell_size=geometry.dx).table(torch.device("cpu"))
+    material_id = (torch.rand(n, generator=gen) < 0.2).to(torch.int32)   # 80 % brittle
+    brittle = material_id == 0
+    F_E = (torch.eye(3) + 0.01 * torch.randn(n, 3, 3, generator=gen)).contiguous()
+    alpha = torch.where(brittle, torch.where(torch.rand(n, generator=gen) < 0.7, 0.0, torch.rand(n, generator=gen)),
+                        torch.full((n,), -0.01))
+    strength = torch.from_numpy(glass.strengths(np.arange(n), np.full(n, 1e-6), seed=3).astype(np.float32))
+    fractured = alpha >= 0.5
+    dt = 2e-4
+    out = g2p_on(device, p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
+    twin = reference.g2p(double(p["x"]), double(F_E), double(alpha), fractured, p["grid_id"], material_id,
+                         table.double(), fields.velocity.double(), geometry, dt, *geometry.clamp_bounds(),
+                         strength=strength)
+    for name, a, b in zip(["x", "v", "C", "F_E", "stress"], [out[i] for i in (0, 1, 2, 3, 5)],
+                          [twin[i] for i in (0, 1, 2, 3, 5)]):
+        assert rel_err(a, b) < REL_TOL, name
+    grew = brittle & (twin[4] > alpha.double())
+    assert int(grew.sum()) > 100, "the substep must damage a fair share of the brittle particles"
+    assert float((out[4].double() - twin[4]).abs().max()) < 2e-3
+    assert float((out[6] != twin[6]).float().mean()) < 1e-3
+    if device != "cpu":
+        cpu = g2p_on("cpu", p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
+        assert rel_err(out[5], cpu[5]) < REL_TOL and float((out[4] - cpu[4]).abs().max()) < 2e-3
 
 
 def test_g2p_reports_the_first_non_finite_particle():

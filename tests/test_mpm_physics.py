@@ -17,7 +17,7 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import parse_scene
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
-from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
-from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.fragment_scenes import block_drop
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary, SimulationBlowUp

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
-from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BLOCK, BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet

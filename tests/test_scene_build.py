@@ -15,17 +15,6 @@ from fracture_gs.mpm.scene import (apply_transform, build_scene, load_particles_
                                    primitive_signed_distance, rotation_matrix_xyz,
                                    sample_primitive)
 
-def _materials_available() -> bool:
-    try:
-        import fracture_gs.mpm.materials  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-needs_materials = pytest.mark.skipif(not _materials_available(),
-                                     reason="fracture_gs.mpm.materials not merged yet")
-
 NACC = {"model": "nacc", "E": 1e4, "nu": 0.3, "density": 10.0, "alpha0": -0.02}
 
 
@@ -126,7 +115,6 @@ def test_particles_ply_missing_property(tmp_path: Path) -> None:
         load_particles_ply(tmp_path / "p.ply", "objects[0].model")
 
 
-@needs_materials
 def test_model_object_transform_parts_and_masses(tmp_path: Path) -> None:
     rng = np.random.default_rng(2)
     x = rng.uniform(-0.05, 0.05, (200, 3))
@@ -206,7 +194,6 @@ def test_object_outside_domain_is_an_error(translate: list[float], boundaries: l
     assert fragment in info.value.problem
 
 
-@needs_materials
 def test_object_inside_margin_is_accepted() -> None:
     # grid 16 → dx = 1/16, margin = 3/16 = 0.1875; a 0.2 box centred at 0.3 spans 0.2..0.4
     config = parse_scene(scene_with([

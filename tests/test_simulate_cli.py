@@ -33,22 +33,6 @@ from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _module_available(name: str) -> bool:
-    try:
-        __import__(name)
-    except ImportError:
-        return False
-    return True
-
-
-needs_materials = pytest.mark.skipif(not _module_available("fracture_gs.mpm.materials"),
-                                     reason="fracture_gs.mpm.materials not merged yet")
-needs_solver = pytest.mark.skipif(
-    not (_module_available("fracture_gs.mpm.solver")
-         and _module_available("fracture_gs.mpm.materials")),
-    reason="fracture_gs.mpm.solver / materials not merged yet")
-
-
 def tiny_scene() -> dict[str, Any]:
     """Two small NACC spheres flying at each other on a 16³ grid (a few hundred particles)."""
     material = {"part": 0, "model": "nacc", "E": 2.0e3, "nu": 0.3, "density": 100.0,
@@ -87,7 +71,7 @@ class BallisticSolver:
     def __init__(self, particles: Any, materials: Any, domain: Any, *, contact: Any = None,
                  boundaries: Any = (), gravity: Any = (0, 0, -9.8), cfl: float = 0.3,
                  object_names: Any = (), backend: str = "auto",
-                 device: torch.device = torch.device("cpu")) -> None:
+                 device: torch.device = torch.device("cpu"), seed: int = 0) -> None:
         self.particles = particles.to(device)
         self.domain = domain
         self.gravity = torch.tensor(gravity, dtype=torch.float32, device=device)
@@ -146,6 +130,9 @@ class BallisticSolver:
     def state_in_input_order(self) -> SimState:
         return self.state  # never reorders its particles
 
+    def damage_in_input_order(self) -> torch.Tensor:
+        return torch.zeros_like(self.state.alpha)  # no brittle material
+
     def state_dict(self) -> dict[str, Any]:
         s = self.state
         return {"x": s.x.clone(), "v": s.v.clone(), "C": s.C.clone(), "F_E": s.F_E.clone(),
@@ -163,7 +150,6 @@ def ballistic(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(cli, "create_solver", lambda built, device, backend: BallisticSolver(
         built.particles, built.materials, built.domain, gravity=built.gravity, cfl=built.cfl,
         object_names=built.object_names, device=device))
-    monkeypatch.setattr("fracture_gs.mpm.scene.make_material", lambda config: config)
 
 
 def run_main(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -217,6 +203,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
         assert frame["x"].shape == (n, 3) and frame["x"].dtype == np.float32
         assert frame["v"].shape == (n, 3) and frame["F_E"].shape == (n, 3, 3)
         assert frame["alpha"].shape == (n,) and frame["fractured"].dtype == np.bool_
+        assert frame["damage"].shape == (n,) and frame["damage"].dtype == np.float32
         assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
         # issue 14: the connected piece of every particle; the two objects never share one
         assert frame["fragment_id"].shape == (n,) and frame["fragment_id"].dtype == np.int32
@@ -227,7 +214,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
                       "elastic", "gravitational", "total_energy", "fractured",
                       "left_px", "left_py", "left_pz", "left_kinetic",
                       "right_px", "right_py", "right_pz", "right_kinetic", "fragments",
-                      "impulse_x", "impulse_y", "impulse_z"]
+                      "impulse_x", "impulse_y", "impulse_z", "fracture_energy"]
     table = read_diagnostics_csv(out / "diagnostics.csv")
     assert table["frame"].tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(table["time"], 0.01 * np.arange(5))
@@ -424,7 +411,6 @@ def test_cli_missing_model_file(tmp_path: Path, capsys: pytest.CaptureFixture[st
 # ----------------------------------------------------------------------------- real solver
 
 
-@needs_solver
 def test_real_solver_run_resume_and_blow_up(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                             capsys: pytest.CaptureFixture[str]) -> None:
     scene = write_scene(tmp_path / "tiny.yaml", tiny_scene())
@@ -467,7 +453,6 @@ def test_real_solver_run_resume_and_blow_up(tmp_path: Path, monkeypatch: pytest.
         assert np.array_equal(a["x"], b["x"])
 
 
-@needs_solver
 def test_real_solver_frames_keep_the_input_order_across_reorders(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """The solver re-sorts its particles while running; frames and resumed runs do not notice."""
@@ -500,7 +485,6 @@ def test_real_solver_frames_keep_the_input_order_across_reorders(
     assert_same_frames(runs["moving"], pieces)
 
 
-@needs_solver
 def test_real_subprocess_kill_and_resume(tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     """SIGKILL a running simulate.py after a few frames; --resume gives the same frames."""
@@ -666,7 +650,6 @@ def test_write_failure_mid_run_exits_1_with_one_line(
     assert len(frames_of(out)) == 3
 
 
-@needs_solver
 def test_ctrl_c_exits_130_with_one_line(tmp_path: Path) -> None:
     """SIGINT while frames are being computed: exit 130, one line, no traceback, resumable."""
     scene_dict = tiny_scene()

@@ -1,12 +1,17 @@
-// Constitutive models of the MPM solver (SPEC §5.3): St. Venant-Kirchhoff elasticity on the
-// Hencky strain, and the NACC return map (Wolper et al. 2019) with CD-MPM hardening.
+// Constitutive models of the MPM solver (docs/formulas.md): St. Venant-Kirchhoff elasticity on the
+// Hencky strain, the NACC return map (Wolper et al. 2019) with CD-MPM hardening, and the brittle
+// damage model (Rankine driving stress, crack-band softening, tension-only degradation).
 //
 // All functions are HOST_DEVICE inline and shared by the OpenMP and CUDA kernels. Interfaces
 // are float32 (row-major float[9] matrices); internally everything runs in double (a handful
 // of flops per particle), so the float results are the correctly rounded double results.
 //
 // Material table row (float[8], see MatField and docs/design_mpm.md):
-//   model (0 elastic, 1 nacc), mu, lambda, bulk K, beta, xi, M, alpha_threshold.
+//   model (0 elastic, 1 nacc, 2 brittle), mu, lambda, bulk K, three model parameters
+//   (nacc: beta, xi, M; brittle: strength, crack band constant, residual), fracture threshold.
+//
+// The per-particle scalar state `alpha` is the model's internal variable: NACC's hardening state
+// alpha, the brittle damage d in [0, 1], unused (constant) for the elastic model.
 //
 // Inverted elements (det F < 0): svd3 returns sigma3 < 0. The Hencky strain uses |sigma|,
 // eps_i = ln max(|sigma_i|, 1e-4): an inverted F is treated as its mirror image. Then
@@ -25,18 +30,21 @@ namespace fgs {
 
 // Columns of one material-table row.
 enum MatField : int {
-  kMatModel = 0,           // 0 = elastic, 1 = nacc
-  kMatMu = 1,              // Lame mu
-  kMatLambda = 2,          // Lame lambda
-  kMatBulk = 3,            // K = lambda + 2 mu / 3
-  kMatBeta = 4,            // NACC beta (tension/compression asymmetry)
-  kMatXi = 5,              // NACC xi (hardening)
-  kMatM = 6,               // NACC M (slope of the critical state line)
-  kMatAlphaThreshold = 7,  // fracture flag: fractured once alpha >= this (used by the solver)
+  kMatModel = 0,              // 0 = elastic, 1 = nacc, 2 = brittle
+  kMatMu = 1,                 // Lame mu
+  kMatLambda = 2,             // Lame lambda
+  kMatBulk = 3,               // K = lambda + 2 mu / 3
+  kMatBeta = 4,               // NACC beta (tension/compression asymmetry)
+  kMatXi = 5,                 // NACC xi (hardening)
+  kMatM = 6,                  // NACC M (slope of the critical state line)
+  kMatStrength = 4,           // brittle: tensile strength sigma_F (median; per-particle values override it)
+  kMatCrackBand = 5,          // brittle: 2 E G_f / h (Pa^2), h the crack band width
+  kMatResidual = 6,           // brittle: k, share of the tensile stiffness left at d = 1
+  kMatFractureThreshold = 7,  // fracture flag: fractured once alpha (nacc) or d (brittle) >= this
   kMatFields = 8
 };
 
-enum MaterialModel : int { kModelElastic = 0, kModelNacc = 1 };
+enum MaterialModel : int { kModelElastic = 0, kModelNacc = 1, kModelBrittle = 2 };
 
 constexpr double kMinSingularValue = 1e-4;  // sigma clamp of the Hencky strain
 constexpr double kNaccP0Floor = 1e-5;       // p0 = K (1e-5 + sinh(xi max(-alpha, 0)))
@@ -49,6 +57,75 @@ constexpr double kNaccYieldTol = 1e-6;
 
 // The yield tolerance of a state with cohesion p0 and critical-state slope M.
 HOST_DEVICE inline double nacc_yield_tolerance(double p0, double M) { return kNaccYieldTol * (M * p0) * (M * p0); }
+
+// ---------------------------------------------------------------------------------------------
+// Brittle damage (docs/formulas.md, "Brittle damage"). Rankine: the driving stress s is the largest
+// principal value of the undegraded Cauchy stress. Crack band: in a band of width h the stress
+// falls linearly from the strength s_F to zero while the strain grows to eps_f = 2 G_f / (h s_F), so
+// the band dissipates G_f per unit area; in undegraded-stress terms the line ends at
+// s_f = E eps_f = B / s_F with B = 2 E G_f / h. Along it the stress is g(d) s, hence
+//   g_target(s) = s_F (s_f - s) / ((s_f - s_F) s)   for s_F < s < s_f (1 at s_F, 0 at s_f),
+// and d follows from g(d) = (1 - d)^2 (1 - k) + k. A band too coarse for the softening (s_f <= s_F)
+// breaks at once. d never decreases: d = max(d_old, d_target(s)), which is d_target of the largest
+// s seen so far because d_target is increasing. Written with selects only (the CPU tiers vectorise
+// it).
+
+// Degradation g(d) = (1 - d)^2 (1 - k) + k of the tensile part of the energy.
+HOST_DEVICE inline double brittle_degradation(double d, double residual) {
+  return (1.0 - d) * (1.0 - d) * (1.0 - residual) + residual;
+}
+
+// Damage the Rankine crack-band law reaches at driving stress s (0 while s <= s_F).
+HOST_DEVICE inline double brittle_damage_target(double s, double strength, double crack_band, double residual) {
+  const double s_f = crack_band / strength;  // undegraded stress at which the softening line ends
+  const bool softens = s_f > strength;       // else the band is too coarse: d jumps to 1
+  const double span = softens ? (s_f - strength) * s : 1.0;
+  const double g_target = softens ? strength * (s_f - s) / span : 0.0;
+  double share = (g_target - residual) / (1.0 - residual);  // (1 - d)^2
+  share = share > 0.0 ? (share < 1.0 ? share : 1.0) : 0.0;
+  return s > strength ? 1.0 - sqrt(share) : 0.0;
+}
+
+// What the brittle model does to a state with volumetric Hencky strain e = ln J, largest principal
+// deviatoric strain dev_max and old damage d_old: the new damage and its degradation g(d).
+struct BrittleResponse {
+  double damage;   // new d
+  double driving;  // undegraded largest principal Cauchy stress
+  double g;        // g(d)
+};
+
+// inverse_J = 1 / det F (the Cauchy stress is tau / J), passed in so that vectorised callers need no exp.
+HOST_DEVICE inline BrittleResponse brittle_response(double mu, double K, double strength, double crack_band,
+                                                    double residual, double d_old, double e, double inverse_J,
+                                                    double dev_max) {
+  BrittleResponse r;
+  r.driving = (2.0 * mu * dev_max + K * e) * inverse_J;
+  const double target = brittle_damage_target(r.driving, strength, crack_band, residual);
+  r.damage = target > d_old ? target : d_old;
+  r.g = brittle_degradation(r.damage, residual);
+  return r;
+}
+
+// Principal Kirchhoff stress of the brittle model (Miehe's spectral split: the tensile part of the
+// energy, psi+ = mu sum <eps_i>+^2 + lambda/2 <e>+^2, is degraded by g, the compressive part never):
+// tau_i = 2 mu g_i eps_i + lambda g_e e with g_i = g where eps_i > 0, else 1 (and g_e likewise for e).
+// A crack closed by compression carries the compression; an open one carries only k of its tension.
+HOST_DEVICE inline double brittle_principal_stress(double mu, double lambda, double g, double eps_i, double e) {
+  return 2.0 * mu * (eps_i > 0.0 ? g : 1.0) * eps_i + lambda * (e > 0.0 ? g : 1.0) * e;
+}
+
+// Elastic energy density of the brittle model: g(d) psi+ + psi- of the principal strains eps (sum e).
+HOST_DEVICE inline double brittle_energy_density(double mu, double lambda, double residual, double d,
+                                                 const double eps[3], double e) {
+  double tensile = e > 0.0 ? 0.5 * lambda * e * e : 0.0;
+  double compressive = e > 0.0 ? 0.0 : 0.5 * lambda * e * e;
+  for (int i = 0; i < 3; ++i) {
+    const double part = mu * eps[i] * eps[i];
+    tensile += eps[i] > 0.0 ? part : 0.0;
+    compressive += eps[i] > 0.0 ? 0.0 : part;
+  }
+  return brittle_degradation(d, residual) * tensile + compressive;
+}
 
 namespace constitutive_detail {
 
@@ -94,6 +171,18 @@ HOST_DEVICE inline void principal_strain(const float F[9], double U[9], double e
   for (int i = 0; i < 9; ++i) Fd[i] = F[i];
   svd3(Fd, U, s, V);
   for (int i = 0; i < 3; ++i) eps[i] = hencky(s[i]);
+}
+
+// tau = U diag(d) U^T from principal Kirchhoff stresses d (symmetric: 6 entries computed).
+HOST_DEVICE inline void compose_symmetric(const double U[9], const double d[3], float tau[9]) {
+  for (int i = 0; i < 3; ++i) {
+    const double a0 = U[3 * i] * d[0], a1 = U[3 * i + 1] * d[1], a2 = U[3 * i + 2] * d[2];
+    for (int j = i; j < 3; ++j) {
+      const float t = static_cast<float>(a0 * U[3 * j] + a1 * U[3 * j + 1] + a2 * U[3 * j + 2]);
+      tau[3 * i + j] = t;
+      tau[3 * j + i] = t;
+    }
+  }
 }
 
 HOST_DEVICE inline void fill_nan(float F[9], float* alpha, float tau[9]) {
@@ -197,9 +286,28 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
   }
 }
 
-// Dispatch on the model column. F: F_trial in, F_E out; alpha: in/out; tau: Kirchhoff stress.
+// Brittle model: F unchanged (no plasticity), alpha = damage d updated, tau = degraded stress of F.
+// strength: the particle's tensile strength (Weibull-distributed per particle, or the row's).
+HOST_DEVICE inline void brittle_update(const float* mat_row, float strength, float F[9], float* alpha, float tau[9]) {
+  const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda], K = mat_row[kMatBulk];
+  double U[9], eps[3], V[9];
+  constitutive_detail::principal_strain(F, U, eps, V);
+  const double e = eps[0] + eps[1] + eps[2];
+  const double eps_max = eps[0] > eps[1] ? (eps[0] > eps[2] ? eps[0] : eps[2]) : (eps[1] > eps[2] ? eps[1] : eps[2]);
+  const BrittleResponse r = brittle_response(mu, K, strength, mat_row[kMatCrackBand], mat_row[kMatResidual],
+                                             *alpha, e, exp(-e), eps_max - e / 3.0);
+  const double principal[3] = {brittle_principal_stress(mu, lambda, r.g, eps[0], e),
+                               brittle_principal_stress(mu, lambda, r.g, eps[1], e),
+                               brittle_principal_stress(mu, lambda, r.g, eps[2], e)};
+  constitutive_detail::compose_symmetric(U, principal, tau);
+  *alpha = static_cast<float>(r.damage);
+}
+
+// Dispatch on the model column. F: F_trial in, F_E out; alpha: in/out; tau: Kirchhoff stress;
+// strength: the particle's tensile strength (read by the brittle model only).
 // An unknown model code gives NaN outputs (the solver's blow-up check reports it).
-HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
+HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], float* alpha, float tau[9],
+                                            float strength) {
   // A non-finite input must stay visible: the return map's branches would otherwise turn a NaN
   // F into a finite tip projection and hide a blow-up.
   float probe = *alpha * 0.f;
@@ -213,35 +321,45 @@ HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], fl
     elastic_update(mat_row, F, alpha, tau);
   } else if (model == kModelNacc) {
     nacc_update(mat_row, F, alpha, tau);
+  } else if (model == kModelBrittle) {
+    brittle_update(mat_row, strength, F, alpha, tau);
   } else {
     constitutive_detail::fill_nan(F, alpha, tau);
   }
 }
 
 // Elastic energy density per unit rest volume: psi = mu |eps|^2 + lambda/2 (tr eps)^2,
-// eps = ln max(|sigma|, 1e-4) (same for every model).
-HOST_DEVICE inline float elastic_energy_density(const float* mat_row, const float F[9]) {
+// eps = ln max(|sigma|, 1e-4); the brittle model degrades its tensile part by g(d), d = alpha.
+HOST_DEVICE inline float elastic_energy_density(const float* mat_row, const float F[9], float alpha) {
   double U[9], eps[3], V[9];
   constitutive_detail::principal_strain(F, U, eps, V);
   const double tr = eps[0] + eps[1] + eps[2];
   const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda];
+  if (static_cast<int>(mat_row[kMatModel]) == kModelBrittle)
+    return static_cast<float>(brittle_energy_density(mu, lambda, mat_row[kMatResidual], alpha, eps, tr));
   return static_cast<float>(mu * (eps[0] * eps[0] + eps[1] * eps[1] + eps[2] * eps[2]) +
                             0.5 * lambda * tr * tr);
+}
+
+// Tensile strength of a particle: its own (strength, may be nullptr) or its material row's.
+HOST_DEVICE inline float particle_strength(const float* strength, int64_t i, const float* mat_row) {
+  return strength != nullptr ? strength[i] : mat_row[kMatStrength];
 }
 
 // Particle i of a batch: copy in, update, copy out (outputs may alias inputs). An out-of-range
 // material id gives NaN outputs; returns whether the id was valid. Used by the CPU and CUDA ops.
 HOST_DEVICE inline bool constitutive_update_particle(int64_t i, const float* F_trial, const float* alpha_in,
-                                                     const float* material_table, int64_t n_materials,
-                                                     const int32_t* material_id, float* F_out, float* alpha_out,
-                                                     float* tau_out) {
+                                                     const float* strength, const float* material_table,
+                                                     int64_t n_materials, const int32_t* material_id, float* F_out,
+                                                     float* alpha_out, float* tau_out) {
   float F[9], tau[9];
   for (int k = 0; k < 9; ++k) F[k] = F_trial[9 * i + k];
   float alpha = alpha_in[i];
   const int32_t id = material_id[i];
   const bool valid = id >= 0 && id < n_materials;
   if (valid) {
-    constitutive_update(material_table + kMatFields * static_cast<int64_t>(id), F, &alpha, tau);
+    const float* row = material_table + kMatFields * static_cast<int64_t>(id);
+    constitutive_update(row, F, &alpha, tau, particle_strength(strength, i, row));
   } else {
     constitutive_detail::fill_nan(F, &alpha, tau);
   }

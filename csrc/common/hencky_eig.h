@@ -107,18 +107,24 @@ HOST_DEVICE FGS_FORCE_INLINE double cauchy_green_minus_identity(const float F[9]
          Fd[2] * (Fd[3] * Fd[7] - Fd[4] * Fd[6]);
 }
 
-// Material parameters of one table row (see MatField).
+// Material parameters of one table row (see MatField) and the particle's tensile strength.
+// c4..c6 are the model's own parameters: NACC beta, xi, M; brittle median strength, crack band
+// constant, residual.
 struct MaterialRow {
-  float model, mu, lambda, bulk, beta, xi, M;
+  float model, mu, lambda, bulk, c4, c5, c6, strength;
 };
 
-// The NACC return map (SPEC §5.3) on the strain invariants, in double: what both update paths
+// The NACC return map (docs/formulas.md) on the strain invariants, in double: what both update paths
 // below need. e: volumetric Hencky strain ln det F; dev_norm: |dev eps|; alpha: the old alpha.
 struct InvariantReturn {
-  double g;          // new dev eps = g dev eps: 1 inside (and for the elastic model), the radial
-                     // scale on the ellipse (volume kept), 0 at the tips
+  double g;          // new dev eps = g dev eps: 1 inside (and for the elastic and brittle models),
+                     // the radial scale on the ellipse (volume kept), 0 at the tips
   double e_out;      // new volumetric strain
-  double alpha;      // new alpha
+  double alpha;      // new alpha (brittle: new damage d)
+  double shear;      // tau = 2 mu shear dev eps + K volume I: shear = g and volume = e_out (NACC,
+  double volume;     // elastic; brittle: g(d) and e, exact for undamaged particles only - damaged ones
+                     // need the principal strains, brittle_principal_stress)
+  double driving;    // brittle: undegraded largest principal Cauchy stress (0 for other models)
   double q;          // sqrt(3/2) 2 mu |dev eps| of the trial state
   double y;          // yield function of the trial state
   double y_tol;      // the state is projected where y > y_tol (nacc_yield_tolerance)
@@ -129,9 +135,9 @@ struct InvariantReturn {
 HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const MaterialRow& m, float alpha, double e,
                                                          double dev_norm) {
   const bool is_nacc = m.model == (float)kModelNacc;
-  const double mu = m.mu, K = m.bulk, beta = m.beta, M = m.M;
+  const double mu = m.mu, K = m.bulk, beta = m.c4, M = m.c6;
   const double a = alpha;
-  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.xi * fast_math::max_of(-a, 0.0)));
+  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.c5 * fast_math::max_of(-a, 0.0)));
   const double p = -K * e;
   const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;  // sqrt(3/2) 2 mu |dev|
   const bool compression_tip = p > p0;
@@ -158,6 +164,26 @@ HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const Materia
   r.y_tol = y_tol;
   r.projected = (tip | ellipse) ? 1.f : 0.f;
   r.tip = tip ? 1.f : 0.f;
+  r.shear = r.g;
+  r.volume = r.e_out;
+  r.driving = 0.0;
+  return r;
+}
+
+// The update of any model on the strain invariants: NACC's return map (nacc_invariant_return) or the
+// brittle damage law (brittle_response). dev_max: the largest principal deviatoric strain (the
+// brittle driving stress needs it; an upper bound gives an upper bound of the driving stress).
+// det: det F (J).
+HOST_DEVICE FGS_FORCE_INLINE InvariantReturn invariant_update(const MaterialRow& m, float alpha, double e, double det,
+                                                              double dev_norm, double dev_max) {
+  InvariantReturn r = nacc_invariant_return(m, alpha, e, dev_norm);
+  const bool is_brittle = m.model == (float)kModelBrittle;
+  const BrittleResponse b = brittle_response(m.mu, m.bulk, m.strength, m.c5, m.c6, alpha, e,
+                                             1.0 / (det > 0.0 ? det : 1.0), dev_max);
+  r.alpha = is_brittle ? b.damage : r.alpha;
+  r.shear = is_brittle ? b.g : r.shear;
+  r.volume = is_brittle ? e : r.volume;
+  r.driving = is_brittle ? b.driving : 0.0;
   return r;
 }
 
@@ -169,7 +195,7 @@ struct EigProjection {
   float projected;         // 1 if the state was projected onto the yield surface, else 0
 };
 
-// Constitutive update (elastic or NACC, SPEC §5.3) through the eigen-decomposition of b, first
+// Constitutive update (elastic, NACC or brittle) through the eigen-decomposition of b, first
 // half: the return map's decisions, alpha and the Kirchhoff stress of F_E. F: F_trial; alpha
 // in/out; tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E.
 // Returns false (outputs meaningless) where the caller must use constitutive_update instead:
@@ -202,9 +228,11 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
     stretch_sq[i] = row_norm2 / (q0 * q0 + q1 * q1 + q2 * q2);
   }
   const double stretch_sq_min = fast_math::min_of(fast_math::min_of(stretch_sq[0], stretch_sq[1]), stretch_sq[2]);
-  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc;
+  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc,
+             is_brittle = m.model == (float)kModelBrittle;
   // Bitwise & and | (no short circuit) on the conditions: branches would stop the vectoriser.
-  const bool valid = (probe == 0.f) & (det > 0.0) & (stretch_sq_min > (double)kEigMinStretchSq) & (is_elastic | is_nacc);
+  const bool valid = (probe == 0.f) & (det > 0.0) & (stretch_sq_min > (double)kEigMinStretchSq) &
+                     (is_elastic | is_nacc | is_brittle);
 
   // From here on double (the loop stays vectorised, 4 lanes per instruction): in float the
   // return map lands ~1e-5 K^2 off the yield surface for strains of order 1, where y is a
@@ -224,7 +252,8 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
 
   const double mu = m.mu, lambda = m.lambda;
-  const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
+  const double dev_max = fast_math::max_of(fast_math::max_of(dev[0], dev[1]), dev[2]);
+  const InvariantReturn ret = invariant_update(m, a, e, det, dev_norm, dev_max);
   *alpha = (float)ret.alpha;
   proj->projected = ret.projected;
   const double g = ret.g;
@@ -233,11 +262,15 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
   for (int i = 0; i < 9; ++i) proj->Q[i] = Q[i];
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i) proj->log_stretch[i] = (g - 1.0) * dev[i] + (e_out - e) * (1.0 / 3.0);
-  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T.
-  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * e_out;
+  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T (NACC,
+  // elastic); the brittle model's principal stresses degrade the tensile principal strains.
+  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * ret.volume;
   double d[3];
 #pragma GCC unroll 9
-  for (int i = 0; i < 3; ++i) d[i] = 2.0 * mu * g * dev[i] + bulk_term;
+  for (int i = 0; i < 3; ++i) {
+    const double brittle = brittle_principal_stress(mu, lambda, ret.shear, dev[i] + e * (1.0 / 3.0), e);
+    d[i] = is_brittle ? brittle : 2.0 * mu * ret.shear * dev[i] + bulk_term;
+  }
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i)
 #pragma GCC unroll 9
@@ -397,18 +430,26 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2] +
                                2.0 * (dev[3] * dev[3] + dev[4] * dev[4] + dev[5] * dev[5]));
 
-  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc;
-  const InvariantReturn ret = nacc_invariant_return(m, a, e, dev_norm);
+  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc,
+             is_brittle = m.model == (float)kModelBrittle;
+  // The largest eigenvalue of a traceless symmetric matrix is at most sqrt(2/3) of its norm: the
+  // brittle driving stress computed from that bound is an upper bound of the true one.
+  const InvariantReturn ret = invariant_update(m, a, e, det, dev_norm, 0.81649658092772603273 * dev_norm);
   // The float error of |dev eps| (a few ulp of |eps_iso| <= 1.03 |Y|) moves y by at most dy:
   // closer than that to the threshold, the decision is left to the eigen path.
-  const double mu = m.mu, beta = m.beta;
+  const double mu = m.mu, beta = m.c4;
   const double q = ret.q;
   const double dq = 1.2247448713915890491 * 2.0 * mu * (2e-6 * (double)sqrtf(y_norm_sq) + 1e-12);
   const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
   // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or
   // the model is elastic (a double, not a bool: GCC 12 cannot vectorise that mix of conditions).
-  const double decided = fast_math::max_of(fast_math::abs_of(ret.y - ret.y_tol) - dy,
-                                           (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
+  // A brittle state is decided where it is undamaged and the bound of its driving stress stays below
+  // the particle's strength (no new damage, whatever the true largest principal stress: the stress is
+  // the undamaged one); damaged states need the principal strains of the eigen path (spectral split).
+  const double nacc_decided = fast_math::max_of(fast_math::abs_of(ret.y - ret.y_tol) - dy,
+                                                (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
+  const bool brittle_decided = (ret.driving < (double)m.strength) & (a == 0.f);
+  const double decided = is_brittle ? (brittle_decided ? 1.0 : -1.0) : nacc_decided;
   *alpha = (float)ret.alpha;
 
   // exp(W) = I + W P, P = sum_k W^(k-1) / k! for k = 1..6, by Horner; W = (g - 1) dev eps.
@@ -434,8 +475,8 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
       F_out[3 * i + j] = (ret.projected > 0.f) ? projected_entry : F[3 * i + j];
     }
 
-  const double bulk_term = ((double)m.lambda + (2.0 / 3.0) * mu) * ret.e_out;
-  const double shear = 2.0 * mu * ret.g;
+  const double bulk_term = ((double)m.lambda + (2.0 / 3.0) * mu) * ret.volume;
+  const double shear = 2.0 * mu * ret.shear;
   const float t00 = (float)(shear * dev[0] + bulk_term), t11 = (float)(shear * dev[1] + bulk_term),
               t22 = (float)(shear * dev[2] + bulk_term), t01 = (float)(shear * dev[3]),
               t02 = (float)(shear * dev[4]), t12 = (float)(shear * dev[5]);
@@ -444,7 +485,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   tau[6] = t02; tau[7] = t12; tau[8] = t22;
   return (probe == 0.f) & (y_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
          (w_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > kSmallStrainMinDet) &
-         (is_elastic | is_nacc) & (decided > 0.0);
+         (is_elastic | is_nacc | is_brittle) & (decided > 0.0);
 }
 
 }  // namespace fgs

@@ -38,6 +38,7 @@ struct G2PInputs {
   const int32_t* grid_id;
   const int32_t* material_id;
   const float* material_table;  // (M, kMatFields)
+  const float* strength;        // (N) tensile strength of brittle particles, or nullptr (the table's)
   float clamp_lower[3];         // particle positions are clamped into [clamp_lower, clamp_upper]
   float clamp_upper[3];
 };
@@ -166,7 +167,7 @@ HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, con
     out.stress[9 * q + i] = tau[i];
   }
   out.alpha[q] = alpha;
-  out.fractured[q] = (in.fractured[q] || alpha >= g2p_material_row(q, in)[kMatAlphaThreshold]) ? 1 : 0;
+  out.fractured[q] = (in.fractured[q] || alpha >= g2p_material_row(q, in)[kMatFractureThreshold]) ? 1 : 0;
 }
 
 // G2P of particle q: gather and advection (g2p_gather), the material's return map on
@@ -175,7 +176,8 @@ HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, con
 HOST_DEVICE inline void g2p_material(long long q, const G2PInputs& in, const G2POutputs& out, float F[9]) {
   float alpha = in.alpha[q];
   float tau[9];
-  constitutive_update(g2p_material_row(q, in), F, &alpha, tau);
+  const float* row = g2p_material_row(q, in);
+  constitutive_update(row, F, &alpha, tau, particle_strength(in.strength, q, row));
   g2p_store_material(q, in, out, F, alpha, tau);
 }
 

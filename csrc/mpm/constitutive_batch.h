@@ -39,16 +39,18 @@ struct ConstitutiveBatch {
   float F[9][kBatchLanes];  // F_trial (input)
   float alpha_in[kBatchLanes];
   float row[kMatFields][kBatchLanes];  // material parameters of each lane
+  float strength[kBatchLanes];         // tensile strength of each lane's particle (brittle model)
   float F_out[9][kBatchLanes];
   float alpha_out[kBatchLanes];
   float tau[9][kBatchLanes];
   int32_t valid[kBatchLanes];  // 1 where the eigen path handled the lane (int32: a bool store blocks vectorising)
 
-  // Lane l takes F_trial, alpha and a material-table row (kMatFields floats).
-  void set(int l, const float* F_trial, float alpha, const float* mat_row) {
+  // Lane l takes F_trial, alpha, a material-table row (kMatFields floats) and the particle's strength.
+  void set(int l, const float* F_trial, float alpha, const float* mat_row, float particle_strength) {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) F[i][l] = F_trial[i];
     alpha_in[l] = alpha;
+    strength[l] = particle_strength;
     #pragma GCC unroll 9
     for (int k = 0; k < kMatFields; ++k) row[k][l] = mat_row[k];
   }
@@ -59,6 +61,7 @@ struct ConstitutiveBatch {
       #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) F[i][l] = (i % 4 == 0) ? 1.f : 0.f;
       alpha_in[l] = 0.f;
+      strength[l] = 1.f;
       #pragma GCC unroll 9
       for (int k = 0; k < kMatFields; ++k) row[k][l] = 0.f;
       row[kMatModel][l] = static_cast<float>(kModelElastic);
@@ -69,7 +72,7 @@ struct ConstitutiveBatch {
   void run(int count) {
     {
       FlushDenormals guard;
-      eigen_lanes(&F[0][0], alpha_in, &row[0][0], &F_out[0][0], alpha_out, &tau[0][0], valid);
+      eigen_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], valid);
     }
     for (int l = 0; l < count; ++l) {
       if (valid[l]) continue;
@@ -77,7 +80,7 @@ struct ConstitutiveBatch {
       for (int i = 0; i < 9; ++i) Fl[i] = F[i][l];
       for (int k = 0; k < kMatFields; ++k) mat_row[k] = row[k][l];
       float a = alpha_in[l];
-      constitutive_update(mat_row, Fl, &a, tl);
+      constitutive_update(mat_row, Fl, &a, tl, strength[l]);
       for (int i = 0; i < 9; ++i) {
         F_out[i][l] = Fl[i];
         tau[i][l] = tl[i];
@@ -86,22 +89,23 @@ struct ConstitutiveBatch {
     }
   }
 
-  // Lane l's F (into Fl) and material row, from [component][lane] arrays.
-  static FGS_FORCE_INLINE MaterialRow load_lane(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT rows, int l,
-                                                float Fl[9]) {
+  // Lane l's F (into Fl) and material row with its strength, from [component][lane] arrays.
+  static FGS_FORCE_INLINE MaterialRow load_lane(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT rows,
+                                                const float* FGS_RESTRICT strength, int l, float Fl[9]) {
 #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) Fl[i] = F_in[i * kBatchLanes + l];
     return MaterialRow{rows[kMatModel * kBatchLanes + l], rows[kMatMu * kBatchLanes + l],
                        rows[kMatLambda * kBatchLanes + l], rows[kMatBulk * kBatchLanes + l],
-                       rows[kMatBeta * kBatchLanes + l],  rows[kMatXi * kBatchLanes + l],
-                       rows[kMatM * kBatchLanes + l]};
+                       rows[4 * kBatchLanes + l],         rows[5 * kBatchLanes + l],
+                       rows[6 * kBatchLanes + l],         strength[l]};
   }
 
   // The eigen path (constitutive_stress_eig, then projected_deformation) on every lane; arrays are [component][lane]. Two vectorised loops:
   // the stress half on every lane, then F_E = projected_deformation only if some lane was
   // projected (most batches stay inside the yield surface: F_E = F_trial, no exp needed).
   static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
-                          const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E, float* FGS_RESTRICT alpha_new,
+                          const float* FGS_RESTRICT rows, const float* FGS_RESTRICT strength,
+                          float* FGS_RESTRICT F_E, float* FGS_RESTRICT alpha_new,
                           float* FGS_RESTRICT tau_out, int32_t* FGS_RESTRICT ok) {
     double Q[9][kBatchLanes], log_stretch[3][kBatchLanes];
     float projected[kBatchLanes];
@@ -110,7 +114,7 @@ struct ConstitutiveBatch {
 #pragma GCC ivdep
     for (int l = 0; l < kBatchLanes; ++l) {
       float Fl[9], tl[9];
-      const MaterialRow m = load_lane(F_in, rows, l, Fl);
+      const MaterialRow m = load_lane(F_in, rows, strength, l, Fl);
       float a = alpha[l];
       EigProjection proj;
       ok[l] = constitutive_stress_eig(m, Fl, &a, tl, &proj) ? 1 : 0;
@@ -151,17 +155,18 @@ struct ConstitutiveBatch {
   // alpha_out and tau hold the result. The other lanes' outputs are meaningless.
   void run_small_strain(int32_t small[kBatchLanes]) {
     FlushDenormals guard;
-    small_strain_lanes(&F[0][0], alpha_in, &row[0][0], &F_out[0][0], alpha_out, &tau[0][0], small);
+    small_strain_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], small);
   }
 
   static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
-                                 const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
+                                 const float* FGS_RESTRICT rows, const float* FGS_RESTRICT strength,
+                                 float* FGS_RESTRICT F_E,
                                  float* FGS_RESTRICT alpha_new, float* FGS_RESTRICT tau_out,
                                  int32_t* FGS_RESTRICT small) {
 #pragma GCC ivdep
     for (int l = 0; l < kBatchLanes; ++l) {
       float Fl[9], Fo[9], tl[9];
-      const MaterialRow m = load_lane(F_in, rows, l, Fl);
+      const MaterialRow m = load_lane(F_in, rows, strength, l, Fl);
       float a = alpha[l];
       small[l] = constitutive_small_strain(m, Fl, &a, Fo, tl) ? 1 : 0;
 #pragma GCC unroll 9
@@ -178,6 +183,7 @@ struct ConstitutiveBatch {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) F[i][l] = other.F[i][from];
     alpha_in[l] = other.alpha_in[from];
+    strength[l] = other.strength[from];
     #pragma GCC unroll 9
     for (int k = 0; k < kMatFields; ++k) row[k][l] = other.row[k][from];
   }
@@ -205,8 +211,8 @@ struct ConstitutiveBatch {
 class ConstitutiveStream {
  public:
   template <class Store>
-  void push(long long id, const float F_trial[9], float alpha, const float* mat_row, Store&& store) {
-    fresh_.set(n_fresh_, F_trial, alpha, mat_row);
+  void push(long long id, const float F_trial[9], float alpha, const float* mat_row, float strength, Store&& store) {
+    fresh_.set(n_fresh_, F_trial, alpha, mat_row, strength);
     fresh_id_[n_fresh_++] = id;
     if (n_fresh_ == kBatchLanes) run_fresh(store);
   }

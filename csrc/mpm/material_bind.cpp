@@ -41,9 +41,17 @@ void check_table(const torch::Tensor& table, const torch::Tensor& material_id, i
 }
 
 
+// A per-particle float tensor of shape (n,) on `device` (contiguous copy).
+torch::Tensor particle_scalars(const torch::Tensor& t, const char* name, int64_t n, const torch::Device& device) {
+  TORCH_CHECK_VALUE(t.dim() == 1 && t.size(0) == n, name, " must have shape (", n, ",), got ", t.sizes());
+  check_float_tensor(t, name);
+  TORCH_CHECK_VALUE(t.device() == device, name, " must be on ", device);
+  return t.contiguous();
+}
+
 std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
     const torch::Tensor& F_trial, const torch::Tensor& alpha, const torch::Tensor& material_table,
-    const torch::Tensor& material_id) {
+    const torch::Tensor& material_id, const std::optional<torch::Tensor>& strength) {
   check_deformation(F_trial, "F_trial");
   const int64_t n = F_trial.size(0);
   TORCH_CHECK_VALUE(alpha.dim() == 1 && alpha.size(0) == n, "alpha must have shape (", n,
@@ -56,13 +64,15 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
   const auto alpha_in = alpha.contiguous();
   const auto table = material_table.contiguous();
   const auto ids = material_id.contiguous();
+  const auto strength_in = strength ? particle_scalars(*strength, "strength", n, F_trial.device()) : torch::Tensor();
+  const float* strength_ptr = strength ? strength_in.data_ptr<float>() : nullptr;
   auto F_out = torch::empty_like(F_in);
   auto alpha_out = torch::empty_like(alpha_in);
   auto tau = torch::empty_like(F_in);
   if (F_in.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
-    constitutive_update_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(),
+    constitutive_update_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), strength_ptr,
                              table.data_ptr<float>(), table.size(0), ids.data_ptr<int32_t>(),
                              F_out.data_ptr<float>(), alpha_out.data_ptr<float>(),
                              tau.data_ptr<float>(), current_cuda_stream());
@@ -72,7 +82,7 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
 #endif
   } else {
     const int64_t invalid = constitutive_update_cpu(
-        n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(),
+        n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), strength_ptr, table.data_ptr<float>(),
         table.size(0), ids.data_ptr<int32_t>(), F_out.data_ptr<float>(),
         alpha_out.data_ptr<float>(), tau.data_ptr<float>());
     TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
@@ -81,11 +91,12 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
   return {F_out, alpha_out, tau};
 }
 
-torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& material_table,
-                                const torch::Tensor& material_id) {
+torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& alpha,
+                                const torch::Tensor& material_table, const torch::Tensor& material_id) {
   check_deformation(F_E, "F_E");
   const int64_t n = F_E.size(0);
   check_table(material_table, material_id, n, F_E.device());
+  const auto alpha_in = particle_scalars(alpha, "alpha", n, F_E.device());
   const auto F_in = F_E.contiguous();
   const auto table = material_table.contiguous();
   const auto ids = material_id.contiguous();
@@ -93,14 +104,14 @@ torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& m
   if (F_in.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
-    elastic_energy_cuda(n, F_in.data_ptr<float>(), table.data_ptr<float>(), table.size(0),
+    elastic_energy_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(), table.size(0),
                         ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "elastic_energy: fracture_gs._C was built without CUDA");
 #endif
   } else {
-    const int64_t invalid = elastic_energy_cpu(n, F_in.data_ptr<float>(), table.data_ptr<float>(),
+    const int64_t invalid = elastic_energy_cpu(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(),
                                                table.size(0), ids.data_ptr<int32_t>(),
                                                psi.data_ptr<float>());
     TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
@@ -137,12 +148,12 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torc
 void register_materials(pybind11::module& m) {
   m.def("constitutive_update", &constitutive_update_op,
         "Return map + Kirchhoff stress per particle: (F_trial (N,3,3) f32, alpha (N,) f32, "
-        "material_table (M,8) f32, material_id (N,) i32) -> (F_E, alpha_new, tau)",
+        "material_table (M,8) f32, material_id (N,) i32, strength (N,) f32 or None) -> (F_E, alpha_new, tau)",
         pybind11::arg("F_trial"), pybind11::arg("alpha"), pybind11::arg("material_table"),
-        pybind11::arg("material_id"));
+        pybind11::arg("material_id"), pybind11::arg("strength") = pybind11::none());
   m.def("elastic_energy", &elastic_energy_op,
-        "Elastic energy density per unit rest volume: (F_E, material_table, material_id) -> psi (N,)",
-        pybind11::arg("F_E"), pybind11::arg("material_table"), pybind11::arg("material_id"));
+        "Elastic energy density per unit rest volume: (F_E, alpha, material_table, material_id) -> psi (N,)",
+        pybind11::arg("F_E"), pybind11::arg("alpha"), pybind11::arg("material_table"), pybind11::arg("material_id"));
   m.def("svd3_batch", &svd3_batch_op,
         "F = U diag(sigma) V^T with det U = det V = +1: F (N,3,3) f32 -> (U, sigma (N,3), V)",
         pybind11::arg("F"));

@@ -10,7 +10,7 @@
 namespace fgs {
 
 
-int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* alpha_in,
+int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* alpha_in, const float* strength,
                                 const float* material_table, int64_t n_materials,
                                 const int32_t* material_id, float* F_out, float* alpha_out,
                                 float* tau_out) {
@@ -29,9 +29,10 @@ int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* al
     for (int64_t i = 0; i < n; ++i) {
       const int32_t id = material_id[i];
       if (id >= 0 && id < n_materials) {
-        stream.push(i, F_trial + 9 * i, alpha_in[i], material_table + kMatFields * static_cast<int64_t>(id), store);
+        const float* row = material_table + kMatFields * static_cast<int64_t>(id);
+        stream.push(i, F_trial + 9 * i, alpha_in[i], row, particle_strength(strength, i, row), store);
       } else {
-        constitutive_update_particle(i, F_trial, alpha_in, material_table, n_materials, material_id, F_out,
+        constitutive_update_particle(i, F_trial, alpha_in, strength, material_table, n_materials, material_id, F_out,
                                      alpha_out, tau_out);  // NaN outputs for the unknown id
         ++invalid;
       }
@@ -41,14 +42,14 @@ int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* al
   return invalid;
 }
 
-int64_t elastic_energy_cpu(int64_t n, const float* F, const float* material_table,
+int64_t elastic_energy_cpu(int64_t n, const float* F, const float* alpha, const float* material_table,
                            int64_t n_materials, const int32_t* material_id, float* psi) {
   int64_t invalid = 0;
 #pragma omp parallel for schedule(static) reduction(+ : invalid)
   for (int64_t i = 0; i < n; ++i) {
     const int32_t id = material_id[i];
     if (id >= 0 && id < n_materials) {
-      psi[i] = elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i);
+      psi[i] = elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i, alpha[i]);
     } else {
       psi[i] = NAN;
       ++invalid;

@@ -16,7 +16,7 @@ inline unsigned int blocks_for(int64_t n) {
 }
 
 __global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ F_trial,
-                                           const float* __restrict__ alpha_in,
+                                           const float* __restrict__ alpha_in, const float* __restrict__ strength,
                                            const float* __restrict__ material_table,
                                            int64_t n_materials,
                                            const int32_t* __restrict__ material_id,
@@ -24,11 +24,11 @@ __global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ 
                                            float* __restrict__ tau_out) {
   const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  constitutive_update_particle(i, F_trial, alpha_in, material_table, n_materials, material_id, F_out, alpha_out,
-                               tau_out);
+  constitutive_update_particle(i, F_trial, alpha_in, strength, material_table, n_materials, material_id, F_out,
+                               alpha_out, tau_out);
 }
 
-__global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F,
+__global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F, const float* __restrict__ alpha,
                                       const float* __restrict__ material_table, int64_t n_materials,
                                       const int32_t* __restrict__ material_id,
                                       float* __restrict__ psi) {
@@ -36,7 +36,7 @@ __global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F,
   if (i >= n) return;
   const int32_t id = material_id[i];
   psi[i] = (id >= 0 && id < n_materials)
-               ? elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i)
+               ? elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i, alpha[i])
                : NAN;
 }
 
@@ -49,20 +49,20 @@ __global__ void svd3_batch_kernel(int64_t n, const float* __restrict__ F, float*
 
 }  // namespace
 
-void constitutive_update_cuda(int64_t n, const float* F_trial, const float* alpha_in,
+void constitutive_update_cuda(int64_t n, const float* F_trial, const float* alpha_in, const float* strength,
                               const float* material_table, int64_t n_materials,
                               const int32_t* material_id, float* F_out, float* alpha_out,
                               float* tau_out, void* stream) {
   if (n == 0) return;
   constitutive_update_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
-      n, F_trial, alpha_in, material_table, n_materials, material_id, F_out, alpha_out, tau_out);
+      n, F_trial, alpha_in, strength, material_table, n_materials, material_id, F_out, alpha_out, tau_out);
 }
 
-void elastic_energy_cuda(int64_t n, const float* F, const float* material_table,
+void elastic_energy_cuda(int64_t n, const float* F, const float* alpha, const float* material_table,
                          int64_t n_materials, const int32_t* material_id, float* psi, void* stream) {
   if (n == 0) return;
   elastic_energy_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
-      n, F, material_table, n_materials, material_id, psi);
+      n, F, alpha, material_table, n_materials, material_id, psi);
 }
 
 void svd3_batch_cuda(int64_t n, const float* F, float* U, float* sigma, float* V, void* stream) {

@@ -403,7 +403,8 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
 // Writes the outputs into the given tensors; returns (clamped, first_nonfinite or -1, max |v|).
 std::tuple<int64_t, int64_t, double> g2p(
     const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
-    const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
+    const Tensor& material_id, const Tensor& material_table, const std::optional<Tensor>& strength,
+    const Tensor& grid_velocity,
     const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt,
     const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out, Tensor v_out,
     Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out,
@@ -419,6 +420,10 @@ std::tuple<int64_t, int64_t, double> g2p(
   check_tensor(material_table, "material_table", torch::kFloat32, x);
   TORCH_CHECK(material_table.dim() == 2 && material_table.size(1) == kMatFields, "material_table must be (M, ",
               kMatFields, ")");
+  if (strength) {
+    check_tensor(*strength, "strength", torch::kFloat32, x);
+    TORCH_CHECK(strength->numel() == n, "g2p: strength must have one value per particle");
+  }
   FragmentView frag{};
   const FragmentView* frag_ptr = nullptr;
   if (fragments) {  // (damage_gradient, reference, split_particle[, side_mask]): the grids hold fields A and B
@@ -448,6 +453,7 @@ std::tuple<int64_t, int64_t, double> g2p(
   in.grid_id = grid_id.data_ptr<int32_t>();
   in.material_id = material_id.data_ptr<int32_t>();
   in.material_table = material_table.data_ptr<float>();
+  in.strength = strength ? strength->data_ptr<float>() : nullptr;
   for (int d = 0; d < 3; ++d) {
     in.clamp_lower[d] = (float)clamp_lower[d];
     in.clamp_upper[d] = (float)clamp_upper[d];

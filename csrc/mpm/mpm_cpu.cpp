@@ -552,7 +552,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       } else {
         first_bad = q < first_bad ? q : first_bad;
       }
-      stream.push(q, F_trial, in.alpha[q], g2p_material_row(q, in), store);
+      const float* row = g2p_material_row(q, in);
+      stream.push(q, F_trial, in.alpha[q], row, particle_strength(in.strength, q, row), store);
     }
     stream.finish(store);
   }

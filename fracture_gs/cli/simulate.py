@@ -101,7 +101,7 @@ def create_solver(built: BuiltScene, device: torch.device, backend: str) -> Any:
 
     return CollisionMPM(built.particles, built.materials, built.domain, contact=built.contact,
                         boundaries=built.boundaries, gravity=built.gravity, cfl=built.cfl,
-                        object_names=built.object_names, backend=backend, device=device)
+                        object_names=built.object_names, backend=backend, device=device, seed=built.seed)
 
 
 def first_difference(a: Any, b: Any, path: str = "") -> str | None:
@@ -204,7 +204,7 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
         output.start(config.to_dict(), built.particles)
         row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
         output.write_frame(0, solver.state_in_input_order(), row, solver.state_dict(),
-                           fragment_id=solver.fragment_ids())
+                           fragment_id=solver.fragment_ids(), damage=solver.damage_in_input_order())
         return 0
     output.remove_temporaries()
     try:
@@ -220,7 +220,7 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
     output.write_scene(config.to_dict())
     if not output.frame_complete(checkpoint.frame):  # killed between checkpoint and frame
         output.write_frame(checkpoint.frame, solver.state_in_input_order(), checkpoint.rows[-1],
-                           solver.state_dict(), fragment_id=solver.fragment_ids())
+                           solver.state_dict(), fragment_id=solver.fragment_ids(), damage=solver.damage_in_input_order())
     return checkpoint.frame
 
 
@@ -294,7 +294,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
             row = diagnostics_row(frame, solver.state.time, stats.steps, stats.dt_min,
                                   solver.diagnostics())
             output.write_frame(frame, solver.state_in_input_order(), row, solver.state_dict(),
-                               fragment_id=solver.fragment_ids())
+                               fragment_id=solver.fragment_ids(), damage=solver.damage_in_input_order())
             done = frame
             bar.update(1)
             bar.set_postfix(substeps_s=f"{stats.steps / max(elapsed, 1e-9):.0f}",

@@ -16,29 +16,43 @@ Conventions:
 * ``model`` paths are resolved against the current working directory first, then against
   the folder of the scene file; a folder must contain ``particles.ply`` (a ``train.py``
   output), a file must be a ``.ply`` of particles.
-* NACC's α0 may be given as ``alpha0`` or as the paper's ``Jp0`` (α0 = ln Jp0), and M as
-  ``M`` or as ``friction_angle`` φ in degrees (M = 6 sin φ / (3 − sin φ)). The resolved scene
-  always holds ``alpha0`` and ``M``.
+* A material's keys are read and checked by its class (:mod:`fracture_gs.materials`): NACC's α0
+  may be given as ``alpha0`` or as the paper's ``Jp0``, M as ``M`` or as ``friction_angle``; the
+  resolved scene always holds ``alpha0`` and ``M``.
+* An object's initial velocity field about its centre of mass c (after the transform) is
+  v(x) = velocity + angular_velocity × (x − c) + velocity_gradient (x − c).
 """
 from __future__ import annotations
 
-import difflib
-import math
 import os
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 
+from fracture_gs.materials import Material, material_from_yaml
+from fracture_gs.keys import SceneError
+from fracture_gs.keys import boolean as _boolean
+from fracture_gs.keys import check_keys as _check_keys
+from fracture_gs.keys import check_number as _check_number
+from fracture_gs.keys import choice as _choice
+from fracture_gs.keys import fmt as _fmt
+from fracture_gs.keys import integer as _integer
+from fracture_gs.keys import join as _join
+from fracture_gs.keys import listing as _list
+from fracture_gs.keys import mapping as _mapping
+from fracture_gs.keys import name as _name
+from fracture_gs.keys import number as _number
+from fracture_gs.keys import type_name as _type_name
+from fracture_gs.keys import vec3 as _vec3
+
 CONTACT_MODES = ("collision", "mls")
 BOX_CONDITIONS = ("slip", "sticky", "separate")
-MATERIAL_MODELS = ("nacc", "elastic")
 SHAPES = ("box", "sphere", "cylinder")
 PARTICLES_FILE = "particles.ply"
-_NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 # Defaults of optional keys (the paper's values where it gives them, Table 1 / SPEC §5.1).
 DEFAULT_FRAMES = 100
@@ -46,20 +60,8 @@ DEFAULT_FRAME_DT = 1.0 / 60.0
 DEFAULT_GRAVITY = (0.0, 0.0, -9.8)
 DEFAULT_CFL = 0.3
 DEFAULT_PARTICLES_PER_CELL = 8
-DEFAULT_BETA = 0.5
-DEFAULT_XI = 1.0
-DEFAULT_M = 2.36
 DEFAULT_GROUND_FRICTION = 0.5
 DEFAULT_FRAGMENTS = False  # contact.fragments (crack opening inside objects, issue 14)
-
-
-class SceneError(ValueError):
-    """An invalid scene: ``key_path`` names the bad key (or the file), ``problem`` says why."""
-
-    def __init__(self, key_path: str, problem: str) -> None:
-        self.key_path = key_path
-        self.problem = problem
-        super().__init__(f"{key_path}: {problem}" if key_path else problem)
 
 
 # ----------------------------------------------------------------------------- dataclasses
@@ -129,18 +131,19 @@ class PrimitiveConfig:
 
 @dataclass(frozen=True)
 class MaterialConfig:
-    """Material of one part of an object; NACC fields are None for ``elastic``."""
+    """Material of one part of an object: the part id and the material (its class holds the keys)."""
 
     part: int
-    model: Literal["nacc", "elastic"]
-    E: float
-    nu: float
-    density: float
-    alpha0: float | None = None
-    beta: float | None = None
-    xi: float | None = None
-    M: float | None = None
-    alpha_threshold: float | None = None
+    material: Material
+
+    @property
+    def model(self) -> str:
+        """The model's YAML name (``elastic``, ``nacc``, ``brittle``)."""
+        return self.material.name
+
+    @property
+    def density(self) -> float:
+        return self.material.density
 
 
 @dataclass(frozen=True)
@@ -151,6 +154,8 @@ class ObjectConfig:
     primitive: PrimitiveConfig | None = None
     transform: TransformConfig = TransformConfig()
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)   # rad/s, about the centre of mass
+    velocity_gradient: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * 3   # 1/s
 
     @property
     def particles_file(self) -> Path | None:
@@ -220,16 +225,9 @@ def _object_dict(obj: ObjectConfig) -> dict[str, Any]:
                         "rotate_deg": list(obj.transform.rotate_deg),
                         "translate": list(obj.transform.translate)}
     out["velocity"] = list(obj.velocity)
-    out["materials"] = [_material_dict(m) for m in obj.materials]
-    return out
-
-
-def _material_dict(mat: MaterialConfig) -> dict[str, Any]:
-    out: dict[str, Any] = {"part": mat.part, "model": mat.model, "E": mat.E, "nu": mat.nu,
-                           "density": mat.density}
-    if mat.model == "nacc":
-        out.update(alpha0=mat.alpha0, beta=mat.beta, xi=mat.xi, M=mat.M,
-                   alpha_threshold=mat.alpha_threshold)
+    out["angular_velocity"] = list(obj.angular_velocity)
+    out["velocity_gradient"] = [list(row) for row in obj.velocity_gradient]
+    out["materials"] = [{"part": m.part, **m.material.to_yaml()} for m in obj.materials]
     return out
 
 
@@ -281,152 +279,6 @@ def load_scene(path: str | os.PathLike[str]) -> SceneConfig:
 
 
 # ----------------------------------------------------------------------------- validation
-
-
-_MISSING = object()
-
-
-def _fmt(value: Any) -> str:
-    if isinstance(value, float):
-        return f"{value:g}"
-    if isinstance(value, str):
-        return repr(value)
-    return str(value)
-
-
-def _type_name(value: Any) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, Mapping):
-        return "a mapping"
-    if isinstance(value, list):
-        return "a list"
-    return f"{type(value).__name__} {_fmt(value)}"
-
-
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-def _mapping(value: Any, path: str) -> Mapping[str, Any]:
-    if not isinstance(value, Mapping):
-        raise SceneError(path or "<scene>", f"expected a mapping, got {_type_name(value)}")
-    for key in value:
-        if not isinstance(key, str):
-            raise SceneError(_join(path, str(key)), "keys must be strings")
-    return value
-
-
-def _check_keys(data: Mapping[str, Any], path: str, allowed: Sequence[str],
-                required: Sequence[str] = ()) -> None:
-    for key in data:
-        if key not in allowed:
-            close = difflib.get_close_matches(key, allowed, n=1)
-            hint = f" (did you mean '{close[0]}'?)" if close else \
-                f" (allowed: {', '.join(allowed)})"
-            raise SceneError(_join(path, key), f"unknown key{hint}")
-    for key in required:
-        if key not in data:
-            raise SceneError(_join(path, key), "required key is missing")
-
-
-def _default(keypath: str, default: Any) -> Any:
-    """The default of an absent key, or the error if the key is required."""
-    if default is _MISSING:
-        raise SceneError(keypath, "required key is missing")
-    return default
-
-
-def _number(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
-            gt: float | None = None, ge: float | None = None,
-            lt: float | None = None, le: float | None = None) -> float:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    return _check_number(data[key], keypath, gt=gt, ge=ge, lt=lt, le=le)
-
-
-def _check_number(value: Any, keypath: str, *, gt: float | None = None,
-                  ge: float | None = None, lt: float | None = None,
-                  le: float | None = None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise SceneError(keypath, f"expected a number, got {_type_name(value)}")
-    if not math.isfinite(value):
-        raise SceneError(keypath, f"{_fmt(value)} is not finite")
-    if gt is not None and not value > gt:
-        raise SceneError(keypath, f"{_fmt(value)} is not > {_fmt(gt)}")
-    if ge is not None and not value >= ge:
-        raise SceneError(keypath, f"{_fmt(value)} is not >= {_fmt(ge)}")
-    if lt is not None and not value < lt:
-        raise SceneError(keypath, f"{_fmt(value)} is not < {_fmt(lt)}")
-    if le is not None and not value <= le:
-        raise SceneError(keypath, f"{_fmt(value)} is not <= {_fmt(le)}")
-    return float(value)
-
-
-def _boolean(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING) -> bool:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    value = data[key]
-    if not isinstance(value, bool):
-        raise SceneError(keypath, f"expected true or false, got {_type_name(value)}")
-    return value
-
-
-def _integer(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING, *,
-             ge: int | None = None) -> int:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    value = data[key]
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise SceneError(keypath, f"expected an integer, got {_type_name(value)}")
-    if ge is not None and value < ge:
-        raise SceneError(keypath, f"{value} is not >= {ge}")
-    return value
-
-
-def _vec3(data: Mapping[str, Any], key: str, path: str,
-          default: Any = _MISSING, *, gt: float | None = None) -> tuple[float, float, float]:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    value = data[key]
-    if not isinstance(value, list) or len(value) != 3:
-        raise SceneError(keypath, f"expected a list of 3 numbers, got {_type_name(value)}")
-    return tuple(_check_number(v, f"{keypath}[{i}]", gt=gt)  # type: ignore[return-value]
-                 for i, v in enumerate(value))
-
-
-def _choice(data: Mapping[str, Any], key: str, path: str, choices: Sequence[str],
-            default: Any = _MISSING) -> str:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    value = data[key]
-    if not isinstance(value, str) or value not in choices:
-        raise SceneError(keypath, f"{_fmt(value)} is not one of {', '.join(choices)}")
-    return value
-
-
-def _list(data: Mapping[str, Any], key: str, path: str, default: Any = _MISSING) -> list[Any]:
-    keypath = _join(path, key)
-    if key not in data:
-        return _default(keypath, default)
-    value = data[key]
-    if not isinstance(value, list):
-        raise SceneError(keypath, f"expected a list, got {_type_name(value)}")
-    return value
-
-
-def _name(value: Any, keypath: str) -> str:
-    if not isinstance(value, str) or not _NAME_PATTERN.match(value):
-        raise SceneError(keypath, f"{_fmt(value)} is not a valid name "
-                                  "(letters, digits, '_', '-', '.'; no spaces or slashes)")
-    return value
 
 
 _TOP_KEYS = ("name", "domain", "frames", "frame_dt", "gravity", "contact", "cfl", "boundaries",
@@ -522,8 +374,8 @@ def _parse_boundaries(items: list[Any], domain: DomainConfig) -> tuple[BoundaryC
 
 def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> ObjectConfig:
     data = _mapping(value, path)
-    _check_keys(data, path, ("name", "model", "primitive", "transform", "velocity",
-                             "materials"), required=("materials",))
+    _check_keys(data, path, ("name", "model", "primitive", "transform", "velocity", "angular_velocity",
+                             "velocity_gradient", "materials"), required=("materials",))
     name = _name(data["name"], f"{path}.name") if "name" in data else f"object{index}"
     has_model, has_primitive = "model" in data, "primitive" in data
     if has_model == has_primitive:
@@ -534,6 +386,8 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
         else None
     transform = _parse_transform(data.get("transform", {}), f"{path}.transform")
     velocity = _vec3(data, "velocity", path, (0.0, 0.0, 0.0))
+    angular_velocity = _vec3(data, "angular_velocity", path, (0.0, 0.0, 0.0))
+    velocity_gradient = _matrix3(data, "velocity_gradient", path, ((0.0, 0.0, 0.0),) * 3)
     raw_materials = _list(data, "materials", path)
     if not raw_materials:
         raise SceneError(f"{path}.materials", "at least one material is required")
@@ -547,7 +401,25 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
                              f"(materials[{parts[mat.part]}])")
         parts[mat.part] = j
     return ObjectConfig(name=name, materials=materials, model=model, primitive=primitive,
-                        transform=transform, velocity=velocity)
+                        transform=transform, velocity=velocity, angular_velocity=angular_velocity,
+                        velocity_gradient=velocity_gradient)
+
+
+def _matrix3(data: Mapping[str, Any], key: str, path: str,
+             default: tuple[tuple[float, float, float], ...]) -> tuple[tuple[float, float, float], ...]:
+    """A 3×3 matrix given as a list of 3 rows of 3 numbers."""
+    keypath = _join(path, key)
+    if key not in data:
+        return default
+    value = data[key]
+    if not isinstance(value, list) or len(value) != 3 or not all(isinstance(r, list) for r in value):
+        raise SceneError(keypath, f"expected a 3x3 matrix (a list of 3 rows of 3 numbers), got {_type_name(value)}")
+    rows = []
+    for i, row in enumerate(value):
+        if len(row) != 3:
+            raise SceneError(f"{keypath}[{i}]", f"expected a row of 3 numbers, got {len(row)} entries")
+        rows.append(tuple(_check_number(v, f"{keypath}[{i}][{j}]") for j, v in enumerate(row)))
+    return tuple(rows)  # type: ignore[return-value]
 
 
 def _resolve_model(value: Any, keypath: str, base_dir: Path | None) -> Path:
@@ -603,38 +475,6 @@ def _parse_transform(value: Any, path: str) -> TransformConfig:
                            translate=_vec3(data, "translate", path, (0.0, 0.0, 0.0)))
 
 
-_ELASTIC_KEYS = ("part", "model", "E", "nu", "density")
-_NACC_KEYS = _ELASTIC_KEYS + ("alpha0", "Jp0", "beta", "xi", "M", "friction_angle",
-                              "alpha_threshold")
-
-
 def _parse_material(value: Any, path: str) -> MaterialConfig:
     data = _mapping(value, path)
-    model = _choice(data, "model", path, MATERIAL_MODELS)
-    _check_keys(data, path, _NACC_KEYS if model == "nacc" else _ELASTIC_KEYS,
-                required=("E", "nu", "density"))
-    part = _integer(data, "part", path, 0, ge=0)
-    E = _number(data, "E", path, gt=0.0)
-    nu = _number(data, "nu", path, ge=0.0, lt=0.5)
-    density = _number(data, "density", path, gt=0.0)
-    if model == "elastic":
-        return MaterialConfig(part=part, model="elastic", E=E, nu=nu, density=density)
-    if "alpha0" in data and "Jp0" in data:
-        raise SceneError(f"{path}.Jp0", "give only one of 'alpha0' and 'Jp0' (both given)")
-    if "alpha0" not in data and "Jp0" not in data:
-        raise SceneError(f"{path}.alpha0", "required key is missing (give 'alpha0' or 'Jp0')")
-    if "alpha0" in data:
-        alpha0 = _number(data, "alpha0", path)
-    else:
-        alpha0 = math.log(_number(data, "Jp0", path, gt=0.0))
-    if "M" in data and "friction_angle" in data:
-        raise SceneError(f"{path}.M", "give at most one of 'M' and 'friction_angle' (both given)")
-    if "friction_angle" in data:
-        phi = math.radians(_number(data, "friction_angle", path, gt=0.0, lt=90.0))
-        M = 6.0 * math.sin(phi) / (3.0 - math.sin(phi))
-    else:
-        M = _number(data, "M", path, DEFAULT_M, gt=0.0)
-    return MaterialConfig(part=part, model="nacc", E=E, nu=nu, density=density, alpha0=alpha0,
-                          beta=_number(data, "beta", path, DEFAULT_BETA, ge=0.0),
-                          xi=_number(data, "xi", path, DEFAULT_XI, ge=0.0), M=M,
-                          alpha_threshold=_number(data, "alpha_threshold", path, 0.0))
+    return MaterialConfig(part=_integer(data, "part", path, 0, ge=0), material=material_from_yaml(data, path))

@@ -157,7 +157,7 @@ def ours_best(runs: list[dict]) -> dict[str, bool | None]:
 
 def _with_alpha0(config: SceneConfig, alpha0: float) -> SceneConfig:
     objects = tuple(replace(obj, materials=tuple(
-        replace(m, alpha0=alpha0) if m.model == "nacc" else m for m in obj.materials))
+        replace(m, material=replace(m.material, alpha0=alpha0)) if m.model == "nacc" else m for m in obj.materials))
         for obj in config.objects)
     return replace(config, objects=objects, name=f"{config.name}_a0_{-alpha0:.4f}")
 

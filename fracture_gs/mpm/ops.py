@@ -136,8 +136,10 @@ def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields,
 
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,
         material_id: torch.Tensor, material_table: torch.Tensor, grid: GridFields, geometry: GridGeometry,
-        dt: float, backend: str = "auto", fragments: FragmentFields | None = None):
-    """Grid-to-particle transfer, advection and return map.
+        dt: float, backend: str = "auto", fragments: FragmentFields | None = None,
+        strength: torch.Tensor | None = None):
+    """Grid-to-particle transfer, advection and return map (``strength``: per-particle tensile strength
+    of brittle particles, None: the material table's).
 
     ``geometry`` names the object grids (K); with ``fragments`` the grid holds 2K fields and each
     split node is read from the field of the particle's side. Returns (x, v, C, F_E, alpha, stress,
@@ -152,9 +154,9 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
                torch.empty_like(F_E), torch.empty_like(alpha), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(fractured)]
         clamped, first_bad, max_speed = compiled_module().mpm_g2p(
-            x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity, *geometry.args(), dt,
+            x, F_E, alpha, fractured, grid_id, material_id, material_table, strength, velocity, *geometry.args(), dt,
             clamp_lower, clamp_upper, *out, fragments.as_list() if fragments is not None else None,
             fragments.split_gradient if fragments is not None else 1.0)
         return (*out, G2PStats(int(clamped), int(first_bad), float(max_speed)))
     return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity,
-                         geometry, dt, clamp_lower, clamp_upper, fragments)
+                         geometry, dt, clamp_lower, clamp_upper, fragments, strength)

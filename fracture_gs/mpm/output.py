@@ -1,11 +1,13 @@
-"""Output folder of a simulation (SPEC §5.6) and the checkpoint behind ``--resume``.
+"""Output folder of a simulation and the checkpoint behind ``--resume``.
 
 Layout of ``output/sims/<name>/``::
 
     scene.yaml          the resolved scene (defaults filled in)
     particles.npz       constant per-particle data (mass, rest_volume, obj_id, part_id,
                         is_surface, rest_x, gaussian_index)
-    frames/frame_00000.npz   x, v, F_E, alpha (float32), fractured (bool); frame 0 = start
+    frames/frame_00000.npz   x, v, F_E, alpha, damage (float32), fractured (bool), fragment_id
+                        (int32); frame 0 = start. alpha is the material state (NACC's α; for
+                        brittle particles their damage d, as in ``damage``, which is 0 elsewhere)
     diagnostics.csv     one row per frame (columns: :func:`diagnostics_columns`)
     diagnostics.png     momentum and energies over time
     checkpoint.npz      the solver's full state after the last complete frame
@@ -41,11 +43,11 @@ CHECKPOINT_FILE = "checkpoint.npz"
 _SOLVER_PREFIX = "solver/"
 DIAGNOSTICS_CSV = "diagnostics.csv"
 DIAGNOSTICS_PNG = "diagnostics.png"
-FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")
+FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")  # every frame has these; new runs add damage
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
 OBJECT_COLUMNS = ("px", "py", "pz", "kinetic")
-TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z")
+TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z", "fracture_energy")
 
 
 def frame_file_name(frame: int) -> str:
@@ -54,9 +56,10 @@ def frame_file_name(frame: int) -> str:
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
     """CSV header: the SPEC §5.6 columns, then ``<name>_px, _py, _pz, _kinetic`` per object, then
-    ``fragments`` (pieces with >= 1 % of their object's particles) and ``impulse_x, _y, _z`` (the
-    impulse gravity and the boundaries gave since frame 0: p − p(0) equals it up to round-off);
-    last, so old readers keep their column positions."""
+    ``fragments`` (pieces with >= 1 % of their object's particles), ``impulse_x, _y, _z`` (the
+    impulse gravity and the boundaries gave since frame 0: p − p(0) equals it up to round-off) and
+    ``fracture_energy`` (the energy brittle damage has taken since frame 0: kinetic + elastic +
+    gravitational + fracture energy never grows); last, so old readers keep their column positions."""
     return list(BASE_COLUMNS) + [f"{name}_{col}" for name in object_names
                                  for col in OBJECT_COLUMNS] + list(TAIL_COLUMNS)
 
@@ -88,12 +91,15 @@ def diagnostics_row(frame: int, time: float, steps: int, dt_min: float,
         row += [*_vector3(obj["momentum"]), _scalar(obj["kinetic"])]
     row.append(int(_scalar(diagnostics["fragments"])))
     row += _vector3(diagnostics.get("external_impulse", [math.nan] * 3))
+    row.append(_scalar(diagnostics.get("fracture_energy", 0.0)))
     return row
 
 
-def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None) -> dict[str, np.ndarray]:
-    """The per-frame arrays of SPEC §5.6 from a solver state (float32, fractured bool), plus
-    ``fragment_id`` (int32 connected piece of every particle) when given."""
+def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None,
+                 damage: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+    """The per-frame arrays from a solver state (float32, fractured bool), plus ``fragment_id``
+    (int32 connected piece of every particle) and ``damage`` (float32 brittle damage, 0 for other
+    models) when given."""
     def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
         return t.detach().cpu().numpy().astype(dtype, copy=False)
 
@@ -102,6 +108,8 @@ def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None) -> di
               "fractured": array(state.fractured, np.bool_)}
     if fragment_id is not None:
         arrays["fragment_id"] = array(fragment_id, np.int32)
+    if damage is not None:
+        arrays["damage"] = array(damage, np.float32)
     return arrays
 
 
@@ -273,7 +281,8 @@ class SimulationOutput:
         write_text_atomic(self.scene_path, text)
 
     def write_frame(self, frame: int, state: SimState, row: list[float],
-                    solver_state: Mapping[str, Any], fragment_id: torch.Tensor | None = None) -> None:
+                    solver_state: Mapping[str, Any], fragment_id: torch.Tensor | None = None,
+                    damage: torch.Tensor | None = None) -> None:
         """Commit one frame: checkpoint first, then the frame file, then the CSV."""
         if len(row) != len(self.columns):
             raise ValueError(f"diagnostics row has {len(row)} values, expected "
@@ -284,7 +293,7 @@ class SimulationOutput:
         payload.update(frame=np.int64(frame), rows=np.asarray(self.rows, dtype=np.float64),
                        columns=np.asarray(self.columns, dtype=np.str_))
         save_npz_atomic(self.checkpoint_path, payload)
-        save_npz_atomic(self.frame_path(frame), frame_arrays(state, fragment_id))
+        save_npz_atomic(self.frame_path(frame), frame_arrays(state, fragment_id, damage))
         self.write_csv()
 
     def write_csv(self) -> None:
@@ -389,6 +398,11 @@ def plot_diagnostics(columns: Sequence[str], rows: Sequence[Sequence[float]],
     for name, colour in (("kinetic", "tab:orange"), ("elastic", "tab:purple"),
                          ("gravitational", "tab:brown"), ("total_energy", "black")):
         ax_e.plot(time, col[name], color=colour, lw=2, label=name.replace("_", " "))
+    fracture = col.get("fracture_energy")
+    if fracture is not None and np.nanmax(np.abs(fracture)) > 0:
+        ax_e.plot(time, fracture, color="tab:cyan", lw=2, label="fracture energy")
+        ax_e.plot(time, col["total_energy"] + fracture, color="black", lw=1.5, ls="--",
+                  label="total + fracture")
     for k, name in enumerate(object_names):
         ax_e.plot(time, col[f"{name}_kinetic"], color="tab:orange", lw=1,
                   ls=("--", ":", "-.")[k % 3], label=f"{name} kinetic")

@@ -10,7 +10,7 @@ import torch
 
 from fracture_gs.mpm.grid import (FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins, node_coords,
                                   node_index)
-from fracture_gs.mpm.materials import COLUMN, constitutive_update_reference
+from fracture_gs.materials import COLUMN, constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
 # The 27 stencil offsets, in the order the kernels visit them (a, b, c nested).
@@ -303,7 +303,8 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor,
         grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor,
         grid_velocity: torch.Tensor, geometry: GridGeometry, dt: float,
-        clamp_lower: list[float], clamp_upper: list[float], fragments: FragmentFields | None = None):
+        clamp_lower: list[float], clamp_upper: list[float], fragments: FragmentFields | None = None,
+        strength: torch.Tensor | None = None):
     """Gather velocity and APIC affine field, advect, update F and run the return map. With
     ``fragments``, each split node's velocity comes from the field of the particle's side there.
 
@@ -327,8 +328,8 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
     clamped = int((x_new != moved).any(1).sum())
     eye = torch.eye(3, device=x.device, dtype=x.dtype)
     F_trial = (eye + dt * C) @ F_E
-    F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha)
-    threshold = material_table[material_id.long(), COLUMN["alpha_threshold"]]
+    F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha, strength)
+    threshold = material_table[material_id.long(), COLUMN["fracture_threshold"]]
     fractured_new = fractured | (alpha_new >= threshold)
     finite = (torch.isfinite(x_new).all(1) & torch.isfinite(v).all(1) & torch.isfinite(F_new).flatten(1).all(1))
     bad = torch.nonzero(~finite).flatten()

@@ -46,7 +46,7 @@ class BuiltScene:
     """Everything the solver needs, built from a :class:`SceneConfig`."""
 
     particles: ParticleSet
-    materials: list[Any]                  # ElasticMaterial / NACCMaterial, one per table row
+    materials: list[Any]                  # one material (fracture_gs.materials) per table row
     material_keys: list[tuple[int, int]]  # (object index, part id) of each table row
     object_names: list[str]
     domain: Domain
@@ -54,6 +54,7 @@ class BuiltScene:
     boundaries: list[Boundary]
     gravity: tuple[float, float, float]
     cfl: float
+    seed: int = 0                         # the scene's seed (brittle strengths hash it with the row)
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -185,14 +186,14 @@ def load_particles_ply(path: str | Path, key_path: str = "model") -> ObjectParti
 # ----------------------------------------------------------------------------- materials
 
 
-def make_material(config: MaterialConfig) -> Any:
-    """The material object of one config entry (``ElasticMaterial`` or ``NACCMaterial``)."""
-    from fracture_gs.mpm.materials import ElasticMaterial, NACCMaterial
-
-    if config.model == "elastic":
-        return ElasticMaterial(config.E, config.nu, config.density)
-    return NACCMaterial(config.E, config.nu, config.density, config.alpha0, config.beta,
-                        config.xi, config.M, alpha_threshold=config.alpha_threshold)
+def initial_velocities(obj: ObjectConfig, x: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """(n, 3) initial velocity of an object's particles: v(x) = velocity + ω × (x − c) + L (x − c),
+    c the object's centre of mass."""
+    centre = (mass[:, None] * x).sum(axis=0) / mass.sum()
+    offset = x - centre
+    return (np.asarray(obj.velocity, dtype=np.float64)
+            + np.cross(np.asarray(obj.angular_velocity, dtype=np.float64), offset)
+            + offset @ np.asarray(obj.velocity_gradient, dtype=np.float64).T)
 
 
 # ----------------------------------------------------------------------------- assembly
@@ -293,13 +294,13 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
         mass = np.empty(n, dtype=np.float64)
         for part, mat in sorted(by_part.items()):
             row = len(materials)
-            materials.append(make_material(mat))
+            materials.append(mat.material)
             keys.append((index, part))
             mask = parts.part_id == part
             material_id[mask] = row
             mass[mask] = mat.density * parts.rest_volume[mask]
         columns["x"].append(parts.x)
-        columns["v"].append(np.broadcast_to(np.asarray(obj.velocity), (n, 3)))
+        columns["v"].append(initial_velocities(obj, parts.x, mass))
         columns["mass"].append(mass)
         columns["rest_volume"].append(parts.rest_volume)
         columns["obj_id"].append(np.full(n, index, dtype=np.int32))
@@ -326,4 +327,4 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                                               friction=config.contact.friction,
                                               fragments=config.contact.fragments),
                       boundaries=solver_boundaries(config), gravity=config.gravity,
-                      cfl=config.cfl)
+                      cfl=config.cfl, seed=config.seed)

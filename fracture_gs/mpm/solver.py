@@ -19,7 +19,8 @@ from fracture_gs.mpm import ops
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
 from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
-from fracture_gs.mpm.materials import COLUMN, MaterialTable, elastic_energy
+from fracture_gs.materials import COLUMN, MaterialTable, elastic_energy, particle_strengths
+from fracture_gs.materials.brittle import BrittleMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
@@ -43,7 +44,7 @@ class CollisionMPM:
                  contact: ContactSettings | None = None, boundaries: Sequence = (),
                  gravity: Sequence[float] = (0.0, 0.0, -9.8), cfl: float = 0.3,
                  object_names: Sequence[str] | None = None, backend: str = "auto",
-                 device: torch.device | None = None, reorder_every: int = 50) -> None:
+                 device: torch.device | None = None, reorder_every: int = 50, seed: int = 0) -> None:
         self.device = device if device is not None else particles.x.device
         self.particles = particles.to(self.device)
         self.input_particles = self.particles  # the constructor's order, kept for checkpoints
@@ -64,7 +65,7 @@ class CollisionMPM:
         self.n_objects = len(self.object_names)
         self._parse_boundaries(boundaries)
 
-        table = MaterialTable(self.materials)
+        table = MaterialTable(self.materials, cell_size=domain.dx)
         self.material_table = table.table(self.device)
         self.max_wave_speed = float(table.max_wave_speed)
         if int(self.particles.material_id.max()) >= len(self.materials) or int(self.particles.material_id.min()) < 0:
@@ -85,9 +86,18 @@ class CollisionMPM:
                                      with_fragments=self.fragments)
         self._split_particle: torch.Tensor | None = None  # (N) 1: read a split node in the latest substep
         self._damage_started = False  # some particle's fracture flag is set (flags latch: stays True)
-        # α from which a particle of each material counts as damaged for the partition (inf: never).
-        self.damage_alpha = (self.material_table[:, COLUMN["alpha_threshold"]]
-                             + self.contact.damage_dilation).contiguous()
+        # State from which a particle of each material counts as damaged for the partition (inf: never):
+        # NACC's α past its threshold plus the dilation, the brittle damage when complete.
+        self.damage_alpha = table.partition_thresholds(self.contact.damage_dilation, self.device)
+        # Brittle materials: per-particle Weibull strengths (constructor order, then the solver's), the
+        # material mask, and the energy damage has taken (float64, total and per object).
+        self.seed = int(seed)
+        self.input_strength = particle_strengths(self.materials, self.particles.material_id,
+                                                 self.particles.rest_volume, self.seed)
+        self.strength = self.input_strength
+        self.brittle_material = table.is_brittle(self.device)
+        self.has_brittle = bool(self.brittle_material.any())
+        self.fracture_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -124,7 +134,7 @@ class CollisionMPM:
         n = len(self.particles)
         eye = torch.eye(3, device=self.device).expand(n, 3, 3).contiguous()
         alpha = table.initial_alpha(self.particles.material_id).contiguous()
-        threshold = self.material_table[self.particles.material_id.long(), COLUMN["alpha_threshold"]]
+        threshold = self.material_table[self.particles.material_id.long(), COLUMN["fracture_threshold"]]
         state = SimState(x=self.particles.x.float().contiguous(), v=self.particles.v.float().contiguous(),
                          C=torch.zeros(n, 3, 3, device=self.device), F_E=eye, alpha=alpha,
                          fractured=(alpha >= threshold).contiguous())
@@ -182,11 +192,13 @@ class CollisionMPM:
             backend))
         x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
             s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend,
-            fragments=fragments)
+            fragments=fragments, strength=self.strength)
         if fragments is not None:  # fields B are zero again for the next substep
             ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
         self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
+        if self.has_brittle:
+            self.fracture_energy += self._dissipated(s.alpha, alpha, F_E)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -214,6 +226,23 @@ class CollisionMPM:
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
                                           self.split_gradient, side_mask.contiguous())
 
+    def _dissipated(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor) -> torch.Tensor:
+        """(n_objects,) float64 energy the substep's damage took: Σ (g(d_old) − g(d_new)) ψ⁺(F_E) V_p over
+        the brittle particles whose damage grew (the elastic energy g ψ⁺ + ψ⁻ loses exactly that)."""
+        p = self.particles
+        brittle = torch.index_select(self.brittle_material, 0, p.material_id)
+        grew = torch.nonzero(brittle & (damage_new > damage_old)).flatten()
+        out = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+        if len(grew) == 0:
+            return out
+        rows = self.material_table[p.material_id[grew].long()].double()
+        residual = rows[:, COLUMN["residual"]]
+        degradation_drop = ((1.0 - damage_old[grew].double()) ** 2 - (1.0 - damage_new[grew].double()) ** 2) \
+            * (1.0 - residual)
+        tensile = BrittleMaterial.tensile_energy_rows(F_E[grew].double(), rows)
+        energy = degradation_drop * tensile * p.rest_volume[grew].double()
+        return out.index_add_(0, p.obj_id[grew].long(), energy)
+
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
 
@@ -228,6 +257,8 @@ class CollisionMPM:
         self.state = self.state.take(order)
         self.grid_id = torch.index_select(self.grid_id, 0, order)
         self.stress = torch.index_select(self.stress, 0, order)
+        if self.strength is not None:
+            self.strength = torch.index_select(self.strength, 0, order)
         self.input_index = torch.index_select(self.input_index, 0, order)
 
     def state_in_input_order(self) -> SimState:
@@ -235,6 +266,13 @@ class CollisionMPM:
         where = torch.empty_like(self.input_index)  # where[j]: current row of input particle j
         where[self.input_index] = torch.arange(len(where), device=where.device)
         return self.state.take(where)
+
+    def damage_in_input_order(self) -> torch.Tensor:
+        """(N,) float32 damage d of every particle in the constructor's order: the state of brittle
+        particles, 0 for the other models."""
+        state = self.state_in_input_order()
+        brittle = torch.index_select(self.brittle_material, 0, self.input_particles.material_id)
+        return torch.where(brittle, state.alpha, torch.zeros_like(state.alpha))
 
     def fragment_ids(self) -> torch.Tensor:
         """(N,) int64 fragment label of every particle, rows in the constructor's order (connected
@@ -284,7 +322,7 @@ class CollisionMPM:
         mass = p.mass.double()
         v = s.v.double()
         kinetic = 0.5 * mass * (v * v).sum(1)
-        psi = elastic_energy(s.F_E, self.material_table, p.material_id, backend=self.backend).double()
+        psi = elastic_energy(s.F_E, self.material_table, p.material_id, backend=self.backend, alpha=s.alpha).double()
         elastic = psi * p.rest_volume.double()
         gravity = torch.tensor(self.gravity, device=self.device, dtype=torch.float64)
         reference_height = torch.tensor(self._potential_origin(), device=self.device, dtype=torch.float64)
@@ -298,17 +336,20 @@ class CollisionMPM:
 
         mom_obj, kin_obj, ela_obj, grav_obj = (per_object(t).cpu().numpy()
                                                for t in (momentum, kinetic, elastic, gravitational))
+        fracture_obj = self.fracture_energy.cpu().numpy()
         return {
             "momentum": momentum.sum(0).cpu().numpy(),
             "kinetic": float(kinetic.sum()),
             "elastic": float(elastic.sum()),
             "gravitational": float(gravitational.sum()),
             "total_energy": float(kinetic.sum() + elastic.sum() + gravitational.sum()),
+            "fracture_energy": float(fracture_obj.sum()),
             "fractured": int(s.fractured.sum()),
             "fragments": count_fragments(self.fragment_ids(), self.input_particles.obj_id),
             "external_impulse": self.external_impulse.state(),
             "per_object": [{"name": self.object_names[k], "momentum": mom_obj[k], "kinetic": float(kin_obj[k]),
-                            "elastic": float(ela_obj[k]), "gravitational": float(grav_obj[k])}
+                            "elastic": float(ela_obj[k]), "gravitational": float(grav_obj[k]),
+                            "fracture_energy": float(fracture_obj[k])}
                            for k in range(self.n_objects)],
         }
 
@@ -333,6 +374,7 @@ class CollisionMPM:
         out["step"] = np.int64(self.state.step)
         out["max_speed"] = np.float64(self.max_speed)
         out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
+        out["fracture_energy"] = self.fracture_energy.cpu().numpy()
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -353,6 +395,7 @@ class CollisionMPM:
             if order.shape != (n,) or not torch.equal(torch.sort(order).values, torch.arange(n, device=self.device)):
                 raise ValueError("checkpoint 'input_index' is not a permutation of the scene's particles")
         self.particles = self.input_particles.take(order)
+        self.strength = torch.index_select(self.input_strength, 0, order) if self.input_strength is not None else None
         self.grid_id = self._grid_ids(self.particles)
         self.input_index = order
         self.stress = tensors.pop("stress").float()
@@ -369,3 +412,9 @@ class CollisionMPM:
         self.external_impulse.load([float(v) for v in np.asarray(data["external_impulse"]).reshape(3)]
                                    if "external_impulse" in data else None)
         self._fragment_cache = None  # labels belong to the state they were computed from
+        fracture = np.asarray(data["fracture_energy"], dtype=np.float64) if "fracture_energy" in data \
+            else np.zeros(self.n_objects)
+        if fracture.shape != (self.n_objects,):
+            raise ValueError(f"checkpoint 'fracture_energy' has shape {fracture.shape}, the scene has "
+                             f"{self.n_objects} objects")
+        self.fracture_energy = torch.as_tensor(fracture, dtype=torch.float64, device=self.device)

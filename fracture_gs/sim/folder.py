@@ -23,7 +23,7 @@ from fracture_gs.mpm.output import (FRAMES_DIR, PARTICLES_FILE, SCENE_FILE, fram
 
 PARTICLE_ARRAYS = ("rest_x", "obj_id", "is_surface", "gaussian_index", "rest_volume")
 FRAME_ARRAYS = ("x", "F_E", "fractured")
-OPTIONAL_FRAME_ARRAYS = ("fragment_id",)   # runs since issue 14 (connected pieces)
+OPTIONAL_FRAME_ARRAYS = ("fragment_id", "damage")   # absent in runs of older versions
 _FRAME_PATTERN = re.compile(r"^frame_(\d+)\.npz$")
 
 
@@ -55,11 +55,13 @@ class SimFrame:
     F_E: torch.Tensor        # (N,3,3) float32 elastic deformation gradient
     fractured: torch.Tensor  # (N,) bool, latched fracture flag
     fragment_id: torch.Tensor | None = None  # (N,) int64 connected piece, None in older runs
+    damage: torch.Tensor | None = None       # (N,) float32 brittle damage (0 elsewhere), None in older runs
 
     def to(self, device: torch.device) -> "SimFrame":
         return SimFrame(self.index, self.x.to(device), self.F_E.to(device),
                         self.fractured.to(device),
-                        self.fragment_id.to(device) if self.fragment_id is not None else None)
+                        self.fragment_id.to(device) if self.fragment_id is not None else None,
+                        self.damage.to(device) if self.damage is not None else None)
 
 
 def _load_npz(path: Path, names: tuple[str, ...],
@@ -168,7 +170,8 @@ class Simulation:
         path = self.frame_path(index)
         arrays = _load_npz(path, FRAME_ARRAYS, OPTIONAL_FRAME_ARRAYS)
         count = len(self.particles)
-        shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,), "fragment_id": (count,)}
+        shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,), "fragment_id": (count,),
+                  "damage": (count,)}
         for name, shape in shapes.items():
             if name in arrays and arrays[name].shape != shape:
                 raise SimulationError(f"{path}: '{name}' has shape {arrays[name].shape}, expected "
@@ -182,7 +185,14 @@ class Simulation:
             if labels.dtype.kind not in "iu" or (count and not (0 <= labels.min() and labels.max() < count)):
                 raise SimulationError(f"{path}: 'fragment_id' must hold integer labels in [0, {count})")
             fragment_id = torch.from_numpy(labels.astype(np.int64))
+        damage = None
+        if "damage" in arrays:
+            values = arrays["damage"].astype(np.float32)
+            if not (np.isfinite(values).all() and (values >= 0).all() and (values <= 1).all()):
+                raise SimulationError(f"{path}: 'damage' must hold values in [0, 1]")
+            damage = torch.from_numpy(values)
         device = device if device is not None else torch.device("cpu")
         return SimFrame(index, torch.from_numpy(x).to(device), torch.from_numpy(F_E).to(device),
                         torch.from_numpy(arrays["fractured"].astype(bool)).to(device),
-                        fragment_id.to(device) if fragment_id is not None else None)
+                        fragment_id.to(device) if fragment_id is not None else None,
+                        damage.to(device) if damage is not None else None)

@@ -1,0 +1,256 @@
+"""``model: brittle``: elastic pieces that crack - porcelain, glass, ceramic, stone.
+
+The same Hencky elasticity as every material, no plasticity, and a per-particle damage d in [0, 1]
+that never decreases (the particle state; frames store it as ``damage``). Formulas
+(docs/formulas.md, "Brittle damage"; the kernels' copy is ``csrc/common/constitutive.h``):
+
+* Rankine driving stress s: the largest principal value of the undegraded Cauchy stress τ₀ / J.
+* Crack band (Bažant & Oh 1983): in a band of width h the stress falls linearly from the
+  strength σ_F to zero, so the band dissipates G_f per unit crack area whatever the grid. In
+  undegraded-stress terms the softening line ends at s_f = 2 E G_f / (h σ_F); along it
+  g_target(s) = σ_F (s_f − s) / ((s_f − σ_F) s), and d solves g(d) = g_target. A band too coarse
+  for the softening (s_f <= σ_F, i.e. h >= 2 E G_f / σ_F²) breaks at once. d = max(d_old, d_target).
+* Degradation g(d) = (1 − d)² (1 − k) + k of the tensile part only (Miehe's spectral split: a
+  crack closed by compression carries the compression, and volumetric compression is never
+  degraded): ψ = g ψ⁺ + ψ⁻, ψ⁺ = μ Σ⟨ε_i⟩₊² + (λ/2)⟨tr ε⟩₊², ψ⁻ = μ Σ⟨ε_i⟩₋² + (λ/2)⟨tr ε⟩₋²,
+  τ_i = 2μ g_i ε_i + λ g_e tr ε (g_i = g where ε_i > 0, else 1).
+* Weibull strength: σ_F,p = σ_F (V_ref ln R_p / (V_p ln 0.5))^(1/m), R_p a hash of the particle's
+  index and the scene's seed (so runs, resumes, CPU and CUDA agree), V_ref the mean rest volume.
+* The crack band width h is the grid's cell size (``BAND_CELLS`` cells; docs/materials.md says why).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar, Sequence
+
+import numpy as np
+import torch
+
+from fracture_gs import keys
+from fracture_gs.materials.hencky import ELASTIC_KEYS, HenckyElasticity, compose, hencky_strain, proper_svd, \
+    require
+
+MODEL_BRITTLE = 2
+BAND_CELLS = 1.0           # crack band width h in grid cells
+DEFAULT_WEIBULL_M = 0.0    # 0: every particle has the material's strength
+DEFAULT_RESIDUAL = 1e-3
+DEFAULT_FRACTURE_DAMAGE = 0.5
+# The partition (crack opening) splits material whose damage is complete.
+COMPLETE_DAMAGE = 1.0
+_BRITTLE_KEYS = ("strength", "fracture_energy", "weibull_m", "residual", "fracture_damage")
+
+
+def degradation(damage: torch.Tensor, residual: torch.Tensor | float) -> torch.Tensor:
+    """g(d) = (1 − d)² (1 − k) + k."""
+    return (1.0 - damage) ** 2 * (1.0 - residual) + residual
+
+
+def damage_target(driving: torch.Tensor, strength: torch.Tensor, crack_band: torch.Tensor,
+                  residual: torch.Tensor) -> torch.Tensor:
+    """Damage the crack-band law reaches at driving stress s (0 while s <= σ_F); ``crack_band`` is
+    2 E G_f / h, so the softening line ends at s_f = crack_band / σ_F."""
+    s_f = crack_band / strength
+    softens = s_f > strength
+    span = torch.where(softens, (s_f - strength) * driving, torch.ones_like(driving))
+    g_target = torch.where(softens, strength * (s_f - driving) / span, torch.zeros_like(driving))
+    share = ((g_target - residual) / (1.0 - residual)).clamp(0.0, 1.0)
+    return torch.where(driving > strength, 1.0 - torch.sqrt(share), torch.zeros_like(driving))
+
+
+def spectral_split(strain: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(ψ⁺, ψ⁻) of principal Hencky strains (Miehe's spectral split): ψ⁺ = μ Σ⟨ε_i⟩₊² + (λ/2)⟨tr ε⟩₊²
+    takes the tensile principal strains, ψ⁻ the compressive ones; ψ⁺ + ψ⁻ is the Hencky energy."""
+    e = strain.sum(-1)
+    positive = strain.clamp_min(0.0)
+    negative = strain.clamp_max(0.0)
+    tensile = mu * (positive * positive).sum(-1) + 0.5 * lam * e.clamp_min(0.0) ** 2
+    compressive = mu * (negative * negative).sum(-1) + 0.5 * lam * e.clamp_max(0.0) ** 2
+    return tensile, compressive
+
+
+def brittle_update_reference(F_trial: torch.Tensor, damage: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor,
+                             bulk: torch.Tensor, strength: torch.Tensor, crack_band: torch.Tensor,
+                             residual: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The brittle update: (F_trial, d, parameters per row) -> (F_E = F_trial, d', τ). The principal
+    Kirchhoff stress is τ_i = 2μ g_i ε_i + λ g_e tr ε, g_i = g(d) where ε_i > 0 (else 1), g_e likewise."""
+    U, sigma, _ = proper_svd(F_trial)
+    strain = hencky_strain(sigma)
+    e = strain.sum(-1)
+    deviatoric_max = strain.max(-1).values - e / 3.0
+    driving = (2.0 * mu * deviatoric_max + bulk * e) * torch.exp(-e)
+    damage_new = torch.maximum(damage.to(F_trial.dtype), damage_target(driving, strength, crack_band, residual))
+    g = degradation(damage_new, residual)
+    g_principal = torch.where(strain > 0, g[..., None], torch.ones_like(strain))
+    g_volume = torch.where(e > 0, g, torch.ones_like(e))
+    principal = 2.0 * mu[..., None] * g_principal * strain + (lam * g_volume * e)[..., None]
+    return F_trial.clone(), damage_new, compose(U, principal, U)
+
+
+def brittle_energy_reference(F_E: torch.Tensor, damage: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor,
+                             residual: torch.Tensor) -> torch.Tensor:
+    """ψ = g(d) ψ⁺ + ψ⁻ per unit rest volume."""
+    tensile, compressive = spectral_split(hencky_strain(torch.linalg.svdvals(F_E)), mu, lam)
+    return degradation(damage.to(F_E.dtype), residual) * tensile + compressive
+
+
+def tensile_energy_reference(F_E: torch.Tensor, mu: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+    """ψ⁺, the part of the energy that damage degrades (per unit rest volume)."""
+    return spectral_split(hencky_strain(torch.linalg.svdvals(F_E)), mu, lam)[0]
+
+
+@dataclass(frozen=True)
+class BrittleMaterial(HenckyElasticity):
+    """Rankine damage with crack-band softening, Weibull strength and tension-only degradation.
+
+    ``strength`` σ_F (Pa; the median when ``weibull_m`` > 0), ``fracture_energy`` G_f (J/m²),
+    ``weibull_m`` (0: every particle has σ_F), ``residual`` k (share of the tensile stiffness left
+    at d = 1), ``fracture_damage`` (d from which a particle counts as fractured).
+    """
+
+    strength: float
+    fracture_energy: float
+    weibull_m: float = DEFAULT_WEIBULL_M
+    residual: float = DEFAULT_RESIDUAL
+    fracture_damage: float = DEFAULT_FRACTURE_DAMAGE
+
+    name: ClassVar[str] = "brittle"
+    yaml_keys: ClassVar[tuple[str, ...]] = ("part", "model") + ELASTIC_KEYS + _BRITTLE_KEYS
+    model_code: ClassVar[int] = MODEL_BRITTLE
+    parameter_columns: ClassVar[tuple[str, ...]] = ("strength", "crack_band", "residual")
+    alpha0: ClassVar[float] = 0.0  # initial damage
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        self._validate_elasticity()
+        require(owner, "strength", self.strength, self.strength > 0, "> 0")
+        require(owner, "fracture_energy", self.fracture_energy, self.fracture_energy > 0, "> 0")
+        require(owner, "weibull_m", self.weibull_m, self.weibull_m >= 0, ">= 0")
+        require(owner, "residual", self.residual, 0.0 <= self.residual < 1.0, "in [0, 1)")
+        require(owner, "fracture_damage", self.fracture_damage, 0.0 < self.fracture_damage <= 1.0, "in (0, 1]")
+
+    @classmethod
+    def from_yaml(cls, data: Any, path: str) -> "BrittleMaterial":
+        """The material of a scene's material mapping (``part`` and ``model`` are the scene's)."""
+        keys.check_keys(data, path, cls.yaml_keys,
+                        required=ELASTIC_KEYS + ("strength", "fracture_energy"))
+        return cls(**cls.elasticity_from_yaml(data, path),
+                   strength=keys.number(data, "strength", path, gt=0.0),
+                   fracture_energy=keys.number(data, "fracture_energy", path, gt=0.0),
+                   weibull_m=keys.number(data, "weibull_m", path, DEFAULT_WEIBULL_M, ge=0.0),
+                   residual=keys.number(data, "residual", path, DEFAULT_RESIDUAL, ge=0.0, lt=1.0),
+                   fracture_damage=keys.number(data, "fracture_damage", path, DEFAULT_FRACTURE_DAMAGE, gt=0.0,
+                                               le=1.0))
+
+    def to_yaml(self) -> dict[str, Any]:
+        """The resolved keys (``model`` included)."""
+        return {"model": self.name, "E": self.E, "nu": self.nu, "density": self.density, "strength": self.strength,
+                "fracture_energy": self.fracture_energy, "weibull_m": self.weibull_m, "residual": self.residual,
+                "fracture_damage": self.fracture_damage}
+
+    @property
+    def initial_state(self) -> float:
+        """Initial damage of every particle: 0."""
+        return 0.0
+
+    @property
+    def fracture_threshold(self) -> float:
+        """Damage from which a particle counts as fractured (the flag latches)."""
+        return self.fracture_damage
+
+    def partition_threshold(self, damage_dilation: float) -> float:
+        """Damage from which the fragment partition treats a particle as damaged: complete damage."""
+        return COMPLETE_DAMAGE
+
+    @property
+    def characteristic_length(self) -> float:
+        """Hillerborg's characteristic length E G_f / σ_F² (m)."""
+        return self.E * self.fracture_energy / self.strength ** 2
+
+    @property
+    def tensile_share(self) -> float:
+        """ψ⁺ / ψ in uniaxial tension, 1 − 2ν² / (1 + ν): the lateral contraction's energy is never
+        degraded, so the softening line is steepened by this share to spend G_f in a uniaxial band."""
+        return 1.0 - 2.0 * self.nu ** 2 / (1.0 + self.nu)
+
+    def band_width(self, cell_size: float) -> float:
+        """Crack band width h (m) on a grid of the given cell size."""
+        return BAND_CELLS * cell_size
+
+    def crack_band(self, cell_size: float) -> float:
+        """B = 2 E G_f / (h · tensile_share) (Pa²): the undegraded stress at which the softening line
+        ends is B / σ_F, so a band in uniaxial tension spends G_f per unit crack area."""
+        return 2.0 * self.E * self.fracture_energy / (self.band_width(cell_size) * self.tensile_share)
+
+    def snaps(self, cell_size: float) -> bool:
+        """True where the grid is too coarse for the softening (B <= σ_F²): the band breaks at once and
+        spends more than G_f per unit crack area (``band_energy_ratio``)."""
+        return self.crack_band(cell_size) <= self.strength ** 2
+
+    def band_energy_ratio(self, cell_size: float) -> float:
+        """Energy a band in uniaxial tension spends per unit crack area over G_f: 1 while it softens,
+        σ_F² / B > 1 when it breaks at once."""
+        return max(1.0, self.strength ** 2 / self.crack_band(cell_size))
+
+    def pack(self, cell_size: float | None = None) -> list[float]:
+        """One row of the material table (``fracture_gs.materials.table.TABLE_COLUMNS``); the crack
+        band needs the grid's cell size."""
+        if cell_size is None or not cell_size > 0:
+            raise ValueError("BrittleMaterial.pack: the crack band needs the grid's cell size (cell_size > 0)")
+        return self.elastic_row(MODEL_BRITTLE) + [self.strength, self.crack_band(cell_size), self.residual,
+                                                  self.fracture_damage]
+
+    def strengths(self, index: np.ndarray, rest_volume: np.ndarray, seed: int) -> np.ndarray:
+        """Weibull-distributed strength σ_F,p (float64) of the particles with the given indices and rest
+        volumes; V_ref is their mean rest volume."""
+        if self.weibull_m == 0 or len(index) == 0:
+            return np.full(len(index), self.strength, dtype=np.float64)
+        uniform = hash_uniform(index, seed)
+        volume = rest_volume.astype(np.float64)
+        ratio = volume.mean() * np.log(uniform) / (volume * math.log(0.5))
+        return self.strength * ratio ** (1.0 / self.weibull_m)
+
+    @staticmethod
+    def update_rows(F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor, strength: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Torch twin of the kernels' update for particles of this model: (F_E, d', τ)."""
+        return brittle_update_reference(F_trial, state, rows[:, 1], rows[:, 2], rows[:, 3],
+                                        strength.to(F_trial.dtype), rows[:, 5], rows[:, 6])
+
+    @staticmethod
+    def energy_rows(F_E: torch.Tensor, state: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """Torch twin of the kernels' energy density g(d) ψ⁺ + ψ⁻ for particles of this model."""
+        return brittle_energy_reference(F_E, state, rows[:, 1], rows[:, 2], rows[:, 6])
+
+    @staticmethod
+    def tensile_energy_rows(F_E: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """ψ⁺ of particles of this model (the energy damage takes a share of)."""
+        return tensile_energy_reference(F_E, rows[:, 1], rows[:, 2])
+
+
+def hash_uniform(index: np.ndarray, seed: int) -> np.ndarray:
+    """R in (0, 1) per integer index: splitmix64 of (seed << 32) + index, top 53 bits."""
+    with np.errstate(over="ignore"):
+        z = (np.asarray(index, dtype=np.uint64) + (np.uint64(seed) << np.uint64(32))
+             + np.uint64(0x9E3779B97F4A7C15))
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+    return ((z >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0 ** -53
+
+
+def particle_strengths(materials: Sequence[Any], material_id: torch.Tensor, rest_volume: torch.Tensor,
+                       seed: int) -> torch.Tensor | None:
+    """(N,) float32 tensile strength of every particle (its index is its row), on material_id's device:
+    Weibull-distributed for brittle materials, 1 for the others; None if no material is brittle."""
+    brittle = [i for i, m in enumerate(materials) if isinstance(m, BrittleMaterial)]
+    if not brittle:
+        return None
+    ids = material_id.detach().cpu().numpy()
+    volume = rest_volume.detach().cpu().numpy()
+    out = np.ones(len(ids), dtype=np.float64)
+    for i in brittle:
+        rows = np.nonzero(ids == i)[0]
+        out[rows] = materials[i].strengths(rows, volume[rows], seed)
+    return torch.from_numpy(out.astype(np.float32)).to(material_id.device)

@@ -1,0 +1,199 @@
+"""``model: nacc``: non-associated Cam-clay plasticity (Wolper et al. 2019) in Hencky strain.
+
+NACC hardens in compression and loses cohesion in tension: dough, clay, sand and crumbling soil.
+The state is the hardening variable α (α0 = ln J_p0, more negative = stronger); a particle counts
+as fractured once α >= ``alpha_threshold``. Formulas: docs/formulas.md, "NACC plasticity".
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+
+from fracture_gs import keys
+from fracture_gs.materials.hencky import (ELASTIC_KEYS, HenckyElasticity, as_float_tensor, compose,
+                                          energy_density_reference, hencky_strain, kirchhoff_from_strain,
+                                          proper_svd, require)
+
+MODEL_NACC = 1
+P0_FLOOR = 1e-5             # p0 = K (1e-5 + sinh(ξ max(-α, 0)))
+# Project when y > 1e-6 M² p0²: relative to the ellipse's own size, so a cohesionless particle
+# (p0 at its floor) is still projected and hardened (docs/design_mpm.md, "NACC tolerances").
+YIELD_TOLERANCE = 1e-6
+DEFAULT_BETA = 0.5
+DEFAULT_XI = 1.0
+DEFAULT_M = 2.36
+
+
+def friction_angle_to_M(phi_degrees: float) -> float:
+    """Slope M of the critical state line for a friction angle φ: M = 6 sinφ / (3 − sinφ)."""
+    if not 0.0 < phi_degrees < 90.0:
+        raise ValueError(f"friction_angle: {phi_degrees} is not in (0, 90) degrees")
+    s = math.sin(math.radians(phi_degrees))
+    return 6.0 * s / (3.0 - s)
+
+
+@dataclass
+class ReturnMapResult:
+    """Outcome of the NACC return map in principal strains."""
+
+    strain: torch.Tensor      # (N,3) returned Hencky strain ε'
+    alpha: torch.Tensor       # (N,) updated α
+    projected: torch.Tensor   # (N,) bool, False where F stays exactly F_trial
+    tip: torch.Tensor         # (N,) bool, projected to the compression or tension tip
+
+
+def nacc_return_map_strain(strain: torch.Tensor, alpha: torch.Tensor, mu: torch.Tensor,
+                           bulk: torch.Tensor, beta: torch.Tensor, xi: torch.Tensor,
+                           M: torch.Tensor) -> ReturnMapResult:
+    """NACC return map on principal Hencky strains (N,3); parameters (N,) or scalars."""
+    e = strain.sum(-1)
+    deviatoric = strain - e[..., None] / 3.0
+    q = math.sqrt(1.5) * 2.0 * mu * deviatoric.norm(dim=-1)
+    p0 = bulk * (P0_FLOOR + torch.sinh(xi * (-alpha).clamp_min(0.0)))
+    p = -bulk * e
+
+    compression_tip = p > p0
+    tension_tip = ~compression_tip & (p < -beta * p0)
+    tip = compression_tip | tension_tip
+    e_tip = torch.where(compression_tip, -p0 / bulk, beta * p0 / bulk)
+
+    y = (1.0 + 2.0 * beta) * q**2 + M**2 * (p + beta * p0) * (p - p0)
+    yielding = ~tip & (y > YIELD_TOLERANCE * (M * p0) ** 2)
+    q_new = M * torch.sqrt(((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta)).clamp_min(0.0))
+    shrink = torch.where(q > 0, q_new / q.clamp_min(torch.finfo(q.dtype).tiny), 0.0)
+    strain_projected = e[..., None] / 3.0 + shrink[..., None] * deviatoric  # keeps tr ε
+
+    # CD-MPM hardening: α moves as if p went toward the ellipse centre along the ray. The gate is
+    # relative to p0 only (p strictly between the tips); p0 >= 1e-5 K keeps the ray well defined.
+    hardening = yielding & (-beta * p0 < p) & (p < p0)
+    centre = 0.5 * (1.0 - beta) * p0
+    half_axis = 0.5 * (1.0 + beta) * p0
+    t = M * half_axis / torch.sqrt((1.0 + 2.0 * beta) * q**2 + M**2 * (p - centre) ** 2)
+    p_final = centre + t * (p - centre)
+
+    zero = torch.zeros_like(alpha)
+    alpha_new = (alpha + torch.where(tip, e - e_tip, zero)
+                 + torch.where(hardening, (p_final - p) / bulk, zero))
+    strain_new = torch.where(tip[..., None], (e_tip / 3.0)[..., None].expand_as(strain),
+                             torch.where(yielding[..., None], strain_projected, strain))
+    return ReturnMapResult(strain_new, alpha_new, tip | yielding, tip)
+
+
+def nacc_update_reference(F_trial: torch.Tensor, alpha: torch.Tensor, mu: torch.Tensor,
+                          lam: torch.Tensor, bulk: torch.Tensor, beta: torch.Tensor,
+                          xi: torch.Tensor, M: torch.Tensor
+                          ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """NACC return map on F: (F_trial, α) -> (F_E, α', τ(F_E)); F unchanged where not projected."""
+    U, sigma, V = proper_svd(F_trial)
+    result = nacc_return_map_strain(hencky_strain(sigma), alpha, mu, bulk, beta, xi, M)
+    F_projected = compose(U, torch.exp(result.strain), V)
+    F_E = torch.where(result.projected[..., None, None], F_projected, F_trial)
+    tau = kirchhoff_from_strain(U, result.strain, mu, lam)
+    return F_E, result.alpha, tau
+
+
+_NACC_KEYS = ("alpha0", "Jp0", "beta", "xi", "M", "friction_angle", "alpha_threshold")
+
+
+@dataclass(frozen=True)
+class NACCMaterial(HenckyElasticity):
+    """Non-associated Cam-Clay plasticity (Wolper et al. 2019) in Hencky strain.
+
+    ``alpha0`` is the initial hardening state ln(J_p0) (more negative = stronger);
+    a particle counts as fractured once α >= ``alpha_threshold``.
+    """
+
+    alpha0: float
+    beta: float
+    xi: float
+    M: float
+    alpha_threshold: float = 0.0
+
+    name: ClassVar[str] = "nacc"
+    yaml_keys: ClassVar[tuple[str, ...]] = ("part", "model") + ELASTIC_KEYS + _NACC_KEYS
+    model_code: ClassVar[int] = MODEL_NACC
+    parameter_columns: ClassVar[tuple[str, ...]] = ("beta", "xi", "M")
+
+    def __post_init__(self) -> None:
+        owner = type(self).__name__
+        self._validate_elasticity()
+        require(owner, "alpha0", self.alpha0, True, "a finite number")
+        require(owner, "beta", self.beta, self.beta >= 0, ">= 0")
+        require(owner, "xi", self.xi, self.xi >= 0, ">= 0")
+        require(owner, "M", self.M, self.M > 0, "> 0")
+        require(owner, "alpha_threshold", self.alpha_threshold, True, "a finite number")
+
+    @classmethod
+    def from_jp0(cls, E: float, nu: float, density: float, Jp0: float, beta: float, xi: float,
+                 M: float, alpha_threshold: float = 0.0) -> "NACCMaterial":
+        """Build from the initial plastic volume ratio J_p0 (the paper's Table 1 'α'): α0 = ln J_p0."""
+        require(cls.__name__, "Jp0", Jp0, Jp0 > 0, "> 0")
+        return cls(E, nu, density, math.log(Jp0), beta, xi, M, alpha_threshold)
+
+    @classmethod
+    def from_friction_angle(cls, E: float, nu: float, density: float, alpha0: float,
+                            beta: float, xi: float, friction_angle: float,
+                            alpha_threshold: float = 0.0) -> "NACCMaterial":
+        """Build with M = 6 sinφ/(3 − sinφ) from a friction angle φ in degrees."""
+        return cls(E, nu, density, alpha0, beta, xi, friction_angle_to_M(friction_angle),
+                   alpha_threshold)
+
+    @classmethod
+    def from_yaml(cls, data: Any, path: str) -> "NACCMaterial":
+        """The material of a scene's material mapping. α0 may be given as ``alpha0`` or as the paper's
+        ``Jp0`` (α0 = ln Jp0), M as ``M`` or as ``friction_angle`` φ in degrees."""
+        keys.check_keys(data, path, cls.yaml_keys, required=ELASTIC_KEYS)
+        elasticity = cls.elasticity_from_yaml(data, path)
+        if "alpha0" in data and "Jp0" in data:
+            raise keys.SceneError(f"{path}.Jp0", "give only one of 'alpha0' and 'Jp0' (both given)")
+        if "alpha0" not in data and "Jp0" not in data:
+            raise keys.SceneError(f"{path}.alpha0", "required key is missing (give 'alpha0' or 'Jp0')")
+        if "alpha0" in data:
+            alpha0 = keys.number(data, "alpha0", path)
+        else:
+            alpha0 = math.log(keys.number(data, "Jp0", path, gt=0.0))
+        if "M" in data and "friction_angle" in data:
+            raise keys.SceneError(f"{path}.M", "give at most one of 'M' and 'friction_angle' (both given)")
+        if "friction_angle" in data:
+            M = friction_angle_to_M(keys.number(data, "friction_angle", path, gt=0.0, lt=90.0))
+        else:
+            M = keys.number(data, "M", path, DEFAULT_M, gt=0.0)
+        return cls(**elasticity, alpha0=alpha0, beta=keys.number(data, "beta", path, DEFAULT_BETA, ge=0.0),
+                   xi=keys.number(data, "xi", path, DEFAULT_XI, ge=0.0), M=M,
+                   alpha_threshold=keys.number(data, "alpha_threshold", path, 0.0))
+
+    def to_yaml(self) -> dict[str, Any]:
+        """The resolved keys (``model`` included; α0 and M whatever form the scene gave)."""
+        return {"model": self.name, "E": self.E, "nu": self.nu, "density": self.density, "alpha0": self.alpha0,
+                "beta": self.beta, "xi": self.xi, "M": self.M, "alpha_threshold": self.alpha_threshold}
+
+    def partition_threshold(self, damage_dilation: float) -> float:
+        """α from which the fragment partition treats a particle as damaged: cohesion gone
+        (α >= ``alpha_threshold``) and the material opened by ``damage_dilation`` of its volume."""
+        return self.alpha_threshold + damage_dilation
+
+    def pack(self, cell_size: float | None = None) -> list[float]:
+        """One row of the material table (``fracture_gs.materials.table.TABLE_COLUMNS``)."""
+        return self.elastic_row(MODEL_NACC) + [self.beta, self.xi, self.M, self.alpha_threshold]
+
+    def return_map(self, F_trial: torch.Tensor, alpha: torch.Tensor
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
+        """NACC return map: (F_trial (N,3,3), α (N,)) -> (F_E, α')."""
+        F_E, alpha_new, _ = nacc_update_reference(
+            F_trial, alpha, *(as_float_tensor(F_trial, v) for v in
+                              (self.mu, self.lam, self.bulk, self.beta, self.xi, self.M)))
+        return F_E, alpha_new
+
+    @staticmethod
+    def update_rows(F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor, strength: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Torch twin of the kernels' update for particles of this model: (F_E, α', τ)."""
+        return nacc_update_reference(F_trial, state, *(rows[:, column] for column in range(1, 7)))
+
+    @staticmethod
+    def energy_rows(F_E: torch.Tensor, state: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+        """Torch twin of the kernels' energy density ψ for particles of this model."""
+        return energy_density_reference(F_E, rows[:, 1], rows[:, 2])
