@@ -183,6 +183,55 @@ def test_fragment_kernels_match_reference(seed, device):
     assert float((plain[1] - twin_out[1]).abs().max()) > 1e-3 * velocity_scale, "split nodes must change G2P"
 
 
+@pytest.mark.parametrize("device", KERNEL_DEVICES)
+def test_crack_normals_make_references_and_cut_along_their_plane(device):
+    """A few isolated cracked particles (brittle, complete damage) carry crack normals: the compiled
+    reference pass gives the twin's vectors and keys, every node their stencils reach is split, and
+    the particles around a lone crack are parted by the side of its plane."""
+    geometry, p = cracked_particles(3, n_grids=1)
+    p["grid_id"] = torch.zeros_like(p["grid_id"])
+    n = len(p["x"])
+    gen = torch.Generator().manual_seed(5)
+    cracked = torch.zeros(n, dtype=torch.bool)
+    cracked[torch.randperm(n, generator=gen)[:6]] = True
+    p["damaged"] = cracked.contiguous()
+    normals = torch.zeros(n, 3)
+    directions = torch.randn(6, 3, generator=gen)
+    normals[cracked] = directions / directions.norm(dim=1, keepdim=True)
+    scale = 4.0 / geometry.dx
+    split_gradient = 0.25 / geometry.dx
+    fields_geo = field_geometry(geometry)
+    bins = ops.bin_particles(p["x"], p["grid_id"], geometry, backend="cpp")
+    fields = GridFields.zeros(fields_geo, CPU, with_contact=True, with_fragments=True)
+    ops.p2g(bins, *(p[k] for k in P2G_KEYS), p["grid_id"], fields_geo, 1e-4, fields, backend="cpp",
+            damaged=p["damaged"])
+    twin_fields = cast(fields, torch.float32)
+    on = cast(fields, torch.float32, torch.device(device))
+    bins_on = type(bins)(*(getattr(bins, f).to(device) for f in bins.__dataclass_fields__))
+    gradient = ops.fragment_reference(bins_on, p["x"].to(device), p["grid_id"].to(device), geometry, 1e-12,
+                                      split_gradient, on, backend="cpp", crack_normal=normals.to(device),
+                                      crack_scale=scale).cpu()
+    twin_gradient = reference.fragment_reference(p["x"], p["grid_id"], geometry, 1e-12, split_gradient, twin_fields,
+                                                 normals, scale)
+    assert torch.equal(gradient[cracked], scale * normals[cracked])
+    assert rel_err(gradient, twin_gradient) < REL_TOL
+    keys = on.reference[:1].cpu().reshape(-1)
+    twin_keys = twin_fields.reference[:1].reshape(-1)
+    assert torch.equal(keys > 0, twin_keys > 0)
+    assert torch.equal(keys & 0xFFFFFFFF, twin_keys & 0xFFFFFFFF)
+    winners = torch.unique(keys[keys > 0] & 0xFFFFFFFF)
+    assert set(winners.tolist()) <= set(torch.nonzero(cracked).flatten().tolist())   # the cracks are the references
+    # Every node a cracked particle's stencil reaches is split; particles around a lone crack are parted
+    # by the side of its plane (their damage gradients point toward it).
+    node, _, _, _ = reference._stencil(p["x"], geometry)
+    assert bool((keys[node[cracked].flatten()] > 0).all())
+    r = int(torch.nonzero(cracked)[0])
+    near = torch.nonzero(((p["x"] - p["x"][r]).norm(dim=1) < 0.9 * geometry.dx) & ~cracked).flatten()
+    side = (gradient[near] * normals[r]).sum(1) < 0
+    plane = ((p["x"][near] - p["x"][r]) * normals[r]).sum(1) > 0
+    assert len(near) >= 4 and float((side == plane).float().mean()) >= 0.75
+
+
 def test_partition_empties_side_a_where_every_particle_is_on_side_b():
     """Field A at a split node is P2G's sum minus side B; where every particle of the node is on side
     B that difference is only rounding, and the node's whole sum must move to B with A exactly 0

@@ -28,7 +28,7 @@ from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_
 from fracture_gs.viewer.browser import WebsocketProbe, wait_for
 from fracture_gs.viewer.cache import FrameCache
 from fracture_gs.viewer.sources import ModelSource, SimulationSource
-from fracture_gs.viewer.splats import (HIGHLIGHT_RGB, PIECE_PALETTE, SMALL_PIECE_RGB, ObjectSplats,
+from fracture_gs.viewer.splats import (DAMAGE_PALETTE, HIGHLIGHT_RGB, PIECE_PALETTE, SMALL_PIECE_RGB, ObjectSplats,
                                       object_splats, to_uint8, unit_scale_for)
 from render_scenes import block_scene, identity_frames, lattice_block, write_model, write_sim
 
@@ -119,6 +119,58 @@ def test_piece_colours_follow_the_particles_fragment_rank():
     assert plain.piece_rank is None and plain.packed(False, colour_pieces=True) is plain.buffer
 
 
+def test_damage_colours_follow_the_particles_damage():
+    objects = np.array([0, 0, 0, 0, 0])
+    gaussians = _gaussians(5, objects)            # Gaussian i follows particle i
+    damage = torch.tensor([0.0, 0.25, 0.5, 1.0, 1.0])
+    one = object_splats(gaussians, 1, 10.0, None, None, damage)[0]
+    np.testing.assert_array_equal(one.damage, damage.numpy())
+    coloured = ObjectSplats(one.packed(False, colour_damage=True), one.fractured)
+    expected = DAMAGE_PALETTE[[0, 64, 128, 255, 255]]
+    np.testing.assert_array_equal(coloured.rgba[:, :3], to_uint8(expected))
+    np.testing.assert_array_equal(coloured.rgba[:, 3], one.rgba[:, 3])      # opacity kept
+    assert tuple(coloured.rgba[0, :3]) != tuple(coloured.rgba[3, :3])       # intact and cracked differ
+    plain = object_splats(gaussians, 1, 10.0)[0]   # no damage: nothing to colour
+    assert plain.damage is None and plain.packed(False, colour_damage=True) is plain.buffer
+
+
+def test_colour_by_damage_in_the_gui(block_sim: Path, tmp_path: Path):
+    """A brittle run's frames carry damage: the GUI offers the checkbox and sends damage colours."""
+    import yaml
+    sim = tmp_path / "sim"
+    shutil.copytree(block_sim, sim)
+    scene = yaml.safe_load((sim / "scene.yaml").read_text())
+    scene["objects"][0]["materials"] = [{"part": 0, "model": "brittle", "E": 1e6, "nu": 0.2, "density": 10.0,
+                                         "strength": 1e4, "fracture_energy": 1.0}]
+    (sim / "scene.yaml").write_text(yaml.safe_dump(scene, sort_keys=False))
+    frame_file = sim / "frames" / "frame_00001.npz"
+    with np.load(frame_file) as data:
+        arrays = dict(data)
+    damage = np.where(arrays["x"][:, 0] < np.median(arrays["x"][:, 0]), 0.0, 1.0).astype(np.float32)
+    np.savez(frame_file, **arrays, damage=damage)
+    source = SimulationSource(sim, CPU)
+    assert source.has_damage and not SimulationSource(block_sim, CPU).has_damage
+    prepared = source.prepare(1, False)
+    assert set(np.unique(prepared.objects[0].damage)) <= {0.0, 1.0}
+    assert colours_sent_with(source, "damage", (1, False, False, False, True)) == {
+        tuple(to_uint8(DAMAGE_PALETTE[0])), tuple(to_uint8(DAMAGE_PALETTE[255]))}
+
+
+def colours_sent_with(source: SimulationSource, checkbox: str, shown: tuple) -> set[tuple[int, ...]]:
+    """The RGB colours the viewer sends for frame 1 once the GUI checkbox ``checkbox`` is ticked."""
+    prepared = source.prepare(1, False)
+    viewer = Viewer(source, ViewerOptions(port=0, start_frame=1, fpgo=False))
+    viewer.start()
+    try:
+        assert viewer.wait_until_shown(1, timeout=30) and viewer.gui[checkbox].visible
+        viewer.gui[checkbox].value = True
+        assert wait_for(lambda: viewer.shown == shown, 30)
+        sent = ObjectSplats(np.asarray(viewer._nodes[0].buffer), prepared.objects[0].fractured)
+        return {tuple(rgb) for rgb in sent.rgba[:, :3]}
+    finally:
+        viewer.stop()
+
+
 def test_colour_by_piece_in_the_gui(block_sim: Path, tmp_path: Path):
     sim = tmp_path / "sim"
     shutil.copytree(block_sim, sim)
@@ -134,17 +186,8 @@ def test_colour_by_piece_in_the_gui(block_sim: Path, tmp_path: Path):
     prepared = source.prepare(1, False)
     assert set(np.unique(prepared.objects[0].piece_rank)) == {0, 1}
     assert source.prepare(0, False).objects[0].piece_rank is None   # frame 0 has no fragment_id
-    viewer = Viewer(source, ViewerOptions(port=0, start_frame=1, fpgo=False))
-    viewer.start()
-    try:
-        assert viewer.wait_until_shown(1, timeout=30) and viewer.gui["pieces"].visible
-        viewer.gui["pieces"].value = True
-        assert wait_for(lambda: viewer.shown == (1, False, False, True), 30)
-        sent = ObjectSplats(np.asarray(viewer._nodes[0].buffer), prepared.objects[0].fractured)
-        assert {tuple(rgb) for rgb in sent.rgba[:, :3]} == {tuple(to_uint8(PIECE_PALETTE[0])),
-                                                            tuple(to_uint8(PIECE_PALETTE[1]))}
-    finally:
-        viewer.stop()
+    assert colours_sent_with(source, "pieces", (1, False, False, True, False)) == {
+        tuple(to_uint8(PIECE_PALETTE[0])), tuple(to_uint8(PIECE_PALETTE[1]))}
 
 
 def test_packing_is_visers_own_layout():
@@ -298,7 +341,7 @@ def test_frame_diagnostics_reach_the_gui(block_sim: Path, tmp_path: Path):
         prepared = viewer.cache.request((1, True)).result(30)
         np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].buffer)
         viewer.gui["highlight"].value = True          # fractured Gaussians re-sent in magenta
-        assert wait_for(lambda: viewer.shown == (1, True, True, False), 30)
+        assert wait_for(lambda: viewer.shown == (1, True, True, False, False), 30)
         np.testing.assert_array_equal(np.asarray(node.buffer), prepared.objects[0].packed(True))
         assert prepared.objects[0].fractured.any() and not prepared.objects[0].fractured.all()
         viewer.gui["objects"][0].value = False        # per-object visibility

@@ -1,4 +1,4 @@
-// Crack opening inside one object (issue 14): damage-field-gradient partitioning of an object's
+// Crack opening inside one object: damage-field-gradient partitioning of an object's
 // grid field, after Homel & Herbold (IJNME 2017) as used by AnisoMPM (Wolper et al. 2020).
 // Shared by the CPU and CUDA kernels; see docs/design_mpm.md "Fragments".
 //
@@ -7,9 +7,10 @@
 //      the solver sets it where the current alpha is at least the material's fracture threshold
 //      plus contact.damage_dilation), so D_i = sum w m D / sum w m is the mass-weighted damage at
 //      node i (in [0, 1]).
-//   2. Every particle gathers its damage gradient grad D_p = sum_i D_i grad w_ip, and every node
-//      keeps, among the particles whose stencil reaches it, the one with the largest |grad D_p|
-//      (its "reference"; ties broken by the particle index, so the choice is order-free: a max).
+//   2. Every particle gathers its damage gradient grad D_p = sum_i D_i grad w_ip (a cracked brittle
+//      particle takes its scaled crack normal instead, apply_crack_normal), and every node keeps,
+//      among the particles whose stencil reaches it, the one with the largest |grad D_p| (its
+//      "reference"; ties broken by the particle index, so the choice is order-free: a max).
 //   3. A node is split where |grad D_ref| >= split_gradient (a crack passes by). There, particle p
 //      belongs to field B if grad D_p . grad D_ref < 0 (p lies on the other side of the damage
 //      band than the reference particle), else to field A. Field B is summed from its particles
@@ -46,6 +47,20 @@ struct FragmentView {
 
 // Bit of stencil node (a, b, c) in a side mask.
 HOST_DEVICE inline uint32_t side_bit(int a, int b, int c) { return 1u << (9 * a + 3 * b + c); }
+
+// A cracked particle (brittle, complete damage) carries the normal of its crack plane: its reference
+// vector is that normal times crack_scale (1/length, large enough that it splits every node its
+// stencil reaches and outranks the damage gradients there) instead of its damage gradient. At a node
+// whose reference is a cracked particle r, particle q is on side B where grad D_q . n_r < 0: the
+// damage gradient of q points toward the crack, so the test separates the two half-spaces of r's
+// crack plane from the first cracked particle on (a damage band needs many before its gradient
+// reaches split_gradient). crack_normal rows are 0 for particles without a crack; nullptr: none.
+HOST_DEVICE inline void apply_crack_normal(const float* crack_normal, float crack_scale, long long q, float gq[3]) {
+  if (crack_normal == nullptr) return;
+  const float* n = crack_normal + 3 * q;
+  if (n[0] == 0.f && n[1] == 0.f && n[2] == 0.f) return;
+  for (int d = 0; d < 3; ++d) gq[d] = crack_scale * n[d];
+}
 
 // Reference key of a particle with damage gradient g: the high word orders by |g|^2 (the bits of a
 // non-negative float order like its value), the low word breaks ties by the particle index.

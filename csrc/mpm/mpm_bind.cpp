@@ -118,7 +118,8 @@ FragmentView fragment_view(const std::vector<Tensor>& f, const MPMGeometry& geo,
 Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& grid_id,
                           const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
                           int64_t n_grids, double mass_eps, double split_gradient, const Tensor& grid_mass,
-                          const Tensor& grid_damage, Tensor grid_reference) {
+                          const Tensor& grid_damage, Tensor grid_reference,
+                          const std::optional<Tensor>& crack_normal, double crack_scale) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const uint32_t split_bits = split_bits_of(split_gradient);
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
@@ -131,20 +132,25 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
   check_tensor(grid_mass, "grid_mass", torch::kFloat32, x);
   TORCH_CHECK(grid_damage.numel() >= k_nodes && grid_reference.numel() >= k_nodes && grid_mass.numel() >= k_nodes,
               "fragment_reference: grid fields are smaller than the object grids");
+  if (crack_normal) {
+    check_tensor(*crack_normal, "crack_normal", torch::kFloat32, x);
+    TORCH_CHECK(crack_normal->numel() == 3 * x.size(0), "fragment_reference: crack_normal must be (N, 3)");
+  }
+  const float* normals = crack_normal ? crack_normal->data_ptr<float>() : nullptr;
   Tensor damage_gradient = torch::empty({x.size(0), 3}, x.options());  // every row is written
   if (x.device().is_cpu()) {
     for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
     Tensor color_start = bins[4];
     const BinsView view = bins_view(bins, color_start);
     fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, split_bits, grid_mass.data_ptr<float>(),
-                           grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
-                           grid_reference.data_ptr<int64_t>());
+                           grid_damage.data_ptr<float>(), normals, (float)crack_scale,
+                           damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>());
     return damage_gradient;
   }
 #ifdef FGS_WITH_CUDA
   fragment_reference_cuda(x.size(0), x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), geo, (float)mass_eps,
-                          split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), damage_gradient.data_ptr<float>(),
-                          grid_reference.data_ptr<int64_t>(), current_cuda_stream());
+                          split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), normals, (float)crack_scale,
+                          damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>(), current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif

@@ -1,8 +1,9 @@
 """Fragments of a simulation state: connected pieces of each object's particles.
 
 Two particles are linked when they are closer than ``LINK_SPACINGS`` times the rest particle
-spacing (the cube root of the median rest volume); a fragment is a connected component of these
-links inside one object, computed in C++ on a hash grid
+spacing (the cube root of the median rest volume) and neither is a brittle particle with complete
+damage (crushed material or a crack face links to nothing); a fragment is a connected component of
+these links inside one object, computed in C++ on a hash grid
 (:func:`fracture_gs.fracture.spatial.connected_components`). Labels are numbered by the smallest
 particle index of each piece, so they do not depend on the solver's internal particle order when
 the positions are given in input order.
@@ -24,11 +25,25 @@ def link_radius(rest_volume: torch.Tensor) -> float:
     return LINK_SPACINGS * float(rest_volume.float().median()) ** (1.0 / 3.0)
 
 
-def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float, backend: str = "auto") -> torch.Tensor:
-    """(N,) int64 fragment label of every particle (pieces never span two objects)."""
+def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float, backend: str = "auto",
+                 broken: torch.Tensor | None = None) -> torch.Tensor:
+    """(N,) int64 fragment label of every particle (pieces never span two objects), numbered in the
+    order of each piece's smallest particle index. ``broken`` (N,) bool: particles that link to
+    nothing (a brittle particle with complete damage is crushed material or a crack face: a crack
+    through an object parts its pieces even while they still touch); each is a piece of its own."""
     if x.shape[0] == 0:
         return torch.zeros(0, dtype=torch.int64, device=x.device)
-    return connected_components(x, radius, group=obj_id, backend=backend)
+    if broken is None or not bool(broken.any()):
+        return connected_components(x, radius, group=obj_id, backend=backend)
+    whole = torch.nonzero(~broken).flatten()
+    roots = torch.arange(x.shape[0], device=x.device, dtype=torch.int64)
+    if len(whole):
+        labels = connected_components(x[whole].contiguous(), radius, group=obj_id[whole].contiguous(),
+                                      backend=backend)
+        first = torch.full((len(whole),), x.shape[0], dtype=torch.int64, device=x.device)
+        first = first.scatter_reduce(0, labels, whole, "amin")  # smallest particle of each piece
+        roots[whole] = first[labels]
+    return torch.unique(roots, return_inverse=True)[1]
 
 
 def _counted_fragments(labels: torch.Tensor, obj_id: torch.Tensor,

@@ -80,15 +80,20 @@ def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, frict
 
 
 def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
-                       mass_eps: float, split_gradient: float, grid: GridFields, backend: str = "auto") -> torch.Tensor:
+                       mass_eps: float, split_gradient: float, grid: GridFields, backend: str = "auto",
+                       crack_normal: torch.Tensor | None = None, crack_scale: float = 0.0) -> torch.Tensor:
     """Fragments, step 2: every particle's damage gradient ∇D_p = Σ D_i ∇w_ip (returned, (N, 3)) and
     every node's reference key (``grid.reference``: the largest |∇D_p| reaching it, stored only where
-    it reaches ``split_gradient`` (1/length), i.e. where it splits the node; 0 elsewhere).
-    ``geometry`` names the K object grids; P2G must have run with ``damaged``."""
+    it reaches ``split_gradient`` (1/length), i.e. where it splits the node; 0 elsewhere). A particle
+    with a non-zero row of ``crack_normal`` (N, 3) takes ``crack_scale`` (1/length) times it instead
+    of its gradient (csrc/common/mpm_fragments.h, apply_crack_normal). ``geometry`` names the K
+    object grids; P2G must have run with ``damaged``."""
     if use_compiled(x.device, backend):
         return compiled_module().mpm_fragment_reference(bins.as_list(), x, grid_id, *geometry.args(), mass_eps,
-                                                        split_gradient, grid.mass, grid.damage, grid.reference)
-    return reference.fragment_reference(x, grid_id, geometry, mass_eps, split_gradient, grid)
+                                                        split_gradient, grid.mass, grid.damage, grid.reference,
+                                                        crack_normal, crack_scale)
+    return reference.fragment_reference(x, grid_id, geometry, mass_eps, split_gradient, grid, crack_normal,
+                                        crack_scale)
 
 
 def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,

@@ -125,11 +125,13 @@ def _norm_sq_bits(g: torch.Tensor) -> torch.Tensor:
 
 
 def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, mass_eps: float,
-                       split_gradient: float, grid: GridFields) -> torch.Tensor:
+                       split_gradient: float, grid: GridFields, crack_normal: torch.Tensor | None = None,
+                       crack_scale: float = 0.0) -> torch.Tensor:
     """Damage gradients ∇D_p = Σ_i D_i ∇w_ip with D_i = damage_i / mass_i (returned, (N, 3)), and the
     reference key of every node: the maximum over the particles reaching it of
     (bits(|∇D_p|²) << 32) | p, counting only particles with |∇D_p| >= ``split_gradient`` (the keys
-    that split a node; 0 where none does). ``geometry``: K object grids."""
+    that split a node; 0 where none does). A particle with a non-zero row of ``crack_normal`` takes
+    ``crack_scale`` times it as its vector. ``geometry``: K object grids."""
     assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
     index, _, gradient, _ = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
@@ -137,6 +139,10 @@ def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeo
     node_damage = torch.where(node_mass > mass_eps, grid.damage.reshape(-1)[index] / torch.where(
         node_mass > mass_eps, node_mass, torch.ones_like(node_mass)), torch.zeros_like(node_mass))
     damage_gradient = (node_damage[..., None] * gradient).sum(1)
+    if crack_normal is not None:
+        cracked = (crack_normal != 0).any(1)
+        damage_gradient = torch.where(cracked[:, None], (crack_scale * crack_normal).to(damage_gradient.dtype),
+                                      damage_gradient)
     particle = torch.arange(x.shape[0], device=x.device, dtype=torch.int64)
     key = (_norm_sq_bits(damage_gradient) << 32) | particle
     key = torch.where((key >> 32) >= _split_bits(split_gradient), key, torch.zeros_like(key))

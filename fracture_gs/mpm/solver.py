@@ -26,6 +26,12 @@ from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundB
                                    SimulationBlowUp, StepStats)
 
 STATE_KEYS = ("x", "v", "C", "F_E", "alpha", "fractured", "stress")
+# A cracked particle's crack normal outranks damage gradients as a node reference: its reference vector
+# is the normal times this many 1/cells (split nodes need split_gradient, 0.25 per cell by default).
+CRACK_REFERENCE_CELLS = 4.0
+# Crack normals are oriented so that their dot product with this direction is positive: the particles
+# of one crack plane share one orientation (and one side of the partition), whatever their order.
+_CRACK_ORIENTATION = (0.2672612419124244, 0.5345224838248488, 0.8017837257372732)
 
 
 class CollisionMPM:
@@ -98,6 +104,8 @@ class CollisionMPM:
         self.brittle_material = table.is_brittle(self.device)
         self.has_brittle = bool(self.brittle_material.any())
         self.fracture_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+        # Normal of the crack plane of every brittle particle with complete damage (0 elsewhere), solver order.
+        self.crack_normal = (torch.zeros(len(self.particles), 3, device=self.device) if self.has_brittle else None)
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -199,6 +207,7 @@ class CollisionMPM:
         self._check(stats, v, dt)
         if self.has_brittle:
             self.fracture_energy += self._dissipated(s.alpha, alpha, F_E)
+            self._update_crack_normals(s.alpha, alpha, F_E, C, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -215,7 +224,8 @@ class CollisionMPM:
         what G2P needs, or (bins, None) where no node is split."""
         p, s, g, geo = self.particles, self.state, self.grid, self.geometry
         damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, self.split_gradient, g,
-                                                 self.backend)
+                                                 self.backend, crack_normal=self.crack_normal,
+                                                 crack_scale=CRACK_REFERENCE_CELLS / geo.dx)
         split_particle, split_keys, side_mask = ops.fragment_partition(
             bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, damage_gradient,
             self.split_gradient, g, self.backend)
@@ -243,6 +253,28 @@ class CollisionMPM:
         energy = degradation_drop * tensile * p.rest_volume[grew].double()
         return out.index_add_(0, p.obj_id[grew].long(), energy)
 
+    def _update_crack_normals(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor,
+                              C: torch.Tensor, dt: float) -> None:
+        """Crack planes of brittle particles with complete damage: a new crack's normal is the direction of
+        the particle's largest principal stretch (of its largest principal stress, Rankine) when it
+        cracks; afterwards the normal is carried with the material like the normal of a material plane,
+        n ← (I − dt Cᵀ) n, normalised."""
+        assert self.crack_normal is not None
+        cracked = torch.nonzero((self.crack_normal != 0).any(1)).flatten()
+        if len(cracked):
+            normal = self.crack_normal[cracked]
+            normal = normal - dt * (C[cracked].mT @ normal[:, :, None])[:, :, 0]
+            self.crack_normal[cracked] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
+        brittle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
+        new = torch.nonzero(brittle & (damage_new >= 1.0) & (damage_old < 1.0)).flatten()
+        if len(new):
+            F = F_E[new].double()
+            _, vectors = torch.linalg.eigh(F @ F.mT)
+            normal = vectors[:, :, -1]
+            orientation = torch.tensor(_CRACK_ORIENTATION, dtype=normal.dtype, device=normal.device)
+            sign = torch.where(normal @ orientation < 0, -1.0, 1.0).to(normal.dtype)
+            self.crack_normal[new] = (normal * sign[:, None]).float()
+
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
 
@@ -259,6 +291,8 @@ class CollisionMPM:
         self.stress = torch.index_select(self.stress, 0, order)
         if self.strength is not None:
             self.strength = torch.index_select(self.strength, 0, order)
+        if self.crack_normal is not None:
+            self.crack_normal = torch.index_select(self.crack_normal, 0, order)
         self.input_index = torch.index_select(self.input_index, 0, order)
 
     def state_in_input_order(self) -> SimState:
@@ -276,10 +310,12 @@ class CollisionMPM:
 
     def fragment_ids(self) -> torch.Tensor:
         """(N,) int64 fragment label of every particle, rows in the constructor's order (connected
-        pieces of each object, :mod:`fracture_gs.mpm.fragments`); cached per substep."""
+        pieces of each object, :mod:`fracture_gs.mpm.fragments`; brittle particles with complete
+        damage are pieces of their own); cached per substep."""
         if self._fragment_cache is None or self._fragment_cache[0] != self.state.step:
+            broken = self.damage_in_input_order() >= 1.0 if self.has_brittle else None
             labels = fragment_ids(self.state_in_input_order().x, self.input_particles.obj_id, self.fragment_radius,
-                                  backend=self.backend)
+                                  backend=self.backend, broken=broken)
             self._fragment_cache = (self.state.step, labels)
         return self._fragment_cache[1]
 
@@ -375,6 +411,8 @@ class CollisionMPM:
         out["max_speed"] = np.float64(self.max_speed)
         out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
         out["fracture_energy"] = self.fracture_energy.cpu().numpy()
+        if self.crack_normal is not None:
+            out["crack_normal"] = self.crack_normal.cpu().numpy()
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -418,3 +456,9 @@ class CollisionMPM:
             raise ValueError(f"checkpoint 'fracture_energy' has shape {fracture.shape}, the scene has "
                              f"{self.n_objects} objects")
         self.fracture_energy = torch.as_tensor(fracture, dtype=torch.float64, device=self.device)
+        if self.crack_normal is not None:
+            normals = np.asarray(data["crack_normal"], dtype=np.float32) if "crack_normal" in data \
+                else np.zeros((n, 3), dtype=np.float32)
+            if normals.shape != (n, 3):
+                raise ValueError(f"checkpoint 'crack_normal' has shape {normals.shape}, expected ({n}, 3)")
+            self.crack_normal = torch.as_tensor(normals, device=self.device).contiguous()

@@ -97,7 +97,7 @@ class Viewer:
         self._condition = threading.Condition()
         self._stop = threading.Event()
         self.stop_requested = threading.Event()   # set by the disconnect policy
-        self._shown: tuple[int, bool, bool, bool] | None = None   # (frame, fpgo, highlight, pieces)
+        self._shown: tuple[int, bool, bool, bool, bool] | None = None   # (frame, fpgo, highlight, pieces, damage)
         self._shown_frame: SplatFrame | None = None
         self._dirty = True
         self._playing = False
@@ -222,6 +222,9 @@ class Viewer:
                                       visible=source.has_pieces,
                                       hint="each fragment (connected piece, frames' fragment_id) in "
                                            "its own colour, largest first; pieces below 1 % grey")
+            damage = gui.add_checkbox("colour by damage", initial_value=False,
+                                      visible=source.has_damage,
+                                      hint="brittle damage from black (intact) to yellow (cracked through)")
         with gui.add_folder("Objects"):
             visible = [gui.add_checkbox(name, initial_value=True) for name in source.object_names]
         with gui.add_folder("Frame"):
@@ -241,13 +244,14 @@ class Viewer:
                                     ("total_energy", "total energy")):
                     diagnostics[name] = gui.add_number(label, 0.0, disabled=True, step=1e-6)
         self.gui = {"frame": slider, "play": play, "pause": pause, "speed": speed, "loop": loop,
-                    "fpgo": fpgo, "highlight": highlight, "pieces": pieces, "objects": visible,
+                    "fpgo": fpgo, "highlight": highlight, "pieces": pieces, "damage": damage, "objects": visible,
                     "numbers": numbers,
                     "status": status, "diagnostics": diagnostics}
         slider.on_update(lambda _: self._mark_dirty())
         fpgo.on_update(lambda _: self._mark_dirty())
         highlight.on_update(lambda _: self._mark_dirty())
         pieces.on_update(lambda _: self._mark_dirty())
+        damage.on_update(lambda _: self._mark_dirty())
         for checkbox in visible:
             checkbox.on_update(lambda _: self._apply_visibility())
         play.on_click(lambda _: self.set_playing(True))
@@ -271,12 +275,12 @@ class Viewer:
             self._dirty = True
             self._condition.notify_all()
 
-    def _wanted(self) -> tuple[int, bool, bool, bool]:
+    def _wanted(self) -> tuple[int, bool, bool, bool, bool]:
         frame = int(self.gui["frame"].value)
         if frame not in self.source.frames:   # the slider may span a gap: nearest frame
             frame = min(self.source.frames, key=lambda f: abs(f - frame))
         return frame, bool(self.gui["fpgo"].value) and self.source.has_fracture, \
-            bool(self.gui["highlight"].value), bool(self.gui["pieces"].value)
+            bool(self.gui["highlight"].value), bool(self.gui["pieces"].value), bool(self.gui["damage"].value)
 
     # ------------------------------------------------------------------ clients
 
@@ -367,7 +371,7 @@ class Viewer:
                 return
         else:
             return
-        self._send(prepared, highlight=key[2], pieces=key[3])
+        self._send(prepared, highlight=key[2], pieces=key[3], damage=key[4])
         self.gui["status"].value = f"frame {key[0]} shown"
         self._shown, self._shown_frame = key, prepared
         self._notify_shown()
@@ -376,7 +380,7 @@ class Viewer:
         with self._condition:
             self._condition.notify_all()
 
-    def _send(self, prepared: SplatFrame, highlight: bool, pieces: bool = False) -> None:
+    def _send(self, prepared: SplatFrame, highlight: bool, pieces: bool = False, damage: bool = False) -> None:
         server = self.server
         self.send_started = time.perf_counter()
         with server.atomic():
@@ -393,7 +397,7 @@ class Viewer:
                         scale=1.0 / prepared.unit_scale)
                     self._nodes.extend([None] * (index + 1 - len(self._nodes)))
                     self._nodes[index] = node
-                self._nodes[index].buffer = splats.packed(highlight, pieces)
+                self._nodes[index].buffer = splats.packed(highlight, pieces, damage)
             self._apply_visibility(prepared)
             self._update_numbers(prepared)
         server.flush()
@@ -422,7 +426,7 @@ class Viewer:
 
     @property
     def shown(self) -> tuple[int, bool, bool, bool] | None:
-        """(frame, fpgo, highlight, pieces) currently sent to the browsers, or None before the
+        """(frame, fpgo, highlight, pieces, damage) currently sent to the browsers, or None before the
         first."""
         with self._condition:
             return self._shown

@@ -46,6 +46,7 @@ class FrameSource(Protocol):
     bounds: SceneBounds
     has_fracture: bool          # FPGO and the fractured highlight mean something
     has_pieces: bool            # the frames carry fragment_id ("colour by piece")
+    has_damage: bool            # the frames carry a brittle damage ("colour by damage")
 
     def prepare(self, frame: int, fpgo: bool) -> SplatFrame:
         """The splats of ``frame`` (FPGO on or off)."""
@@ -88,6 +89,8 @@ class SimulationSource:
         self.object_names = list(self.sim.object_names)
         last_frame = self.sim.load_frame(self.frames[-1])
         self.has_pieces = last_frame.fragment_id is not None
+        self.has_damage = last_frame.damage is not None and any(
+            material.model == "brittle" for obj in self.sim.scene.objects for material in obj.materials)
         self._obj_id = torch.from_numpy(self.sim.particles.obj_id.astype(np.int64))
         last = last_frame.x.numpy()
         points = np.concatenate([self.sim.particles.rest_x, last])
@@ -110,7 +113,7 @@ class SimulationSource:
         if loaded.fragment_id is not None:
             ranks = piece_ranks(loaded.fragment_id.cpu(), self._obj_id)
         splats = object_splats(gaussians, len(self.object_names), self.unit_scale,
-                               loaded.fractured, ranks)
+                               loaded.fractured, ranks, loaded.damage.cpu() if loaded.damage is not None else None)
         return SplatFrame(index=frame, objects=splats, unit_scale=self.unit_scale,
                           gaussians=len(gaussians), fpgo_gaussians=int(gaussians.is_fpgo.sum()),
                           fractured_particles=int(loaded.fractured.sum()),
@@ -150,6 +153,7 @@ class ModelSource:
 
     has_fracture = False
     has_pieces = False
+    has_damage = False
 
     def __init__(self, folder: str | Path, device: torch.device) -> None:
         root = Path(folder)

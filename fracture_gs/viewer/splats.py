@@ -34,6 +34,9 @@ HIGHLIGHT_RGB = (1.0, 0.05, 0.75)          # fractured particles' Gaussians, on 
 # benchmarks/fragment_strip.py draws them), fragments below 1 % of their object SMALL_PIECE_RGB.
 PIECE_PALETTE = np.asarray(matplotlib.colormaps["tab20"].colors, np.float64)
 SMALL_PIECE_RGB = (0.6, 0.6, 0.6)
+# "colour by damage": the brittle damage d in [0, 1] through matplotlib's inferno (black intact,
+# yellow complete), 256 steps.
+DAMAGE_PALETTE = np.asarray(matplotlib.colormaps["inferno"](np.linspace(0.0, 1.0, 256))[:, :3], np.float64)
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,7 @@ class ObjectSplats:
     fractured: np.ndarray    # (N,) bool: the Gaussian follows a fractured particle or is FPGO's
     piece_rank: np.ndarray | None = None   # (N,) int64: rank of the followed particle's fragment
     #                                        (-1: a fragment below 1 %); None: no fragment_id
+    damage: np.ndarray | None = None       # (N,) float32: damage of the followed particle; None: no damage
 
     def __len__(self) -> int:
         return int(self.buffer.shape[0])
@@ -68,19 +72,25 @@ class ObjectSplats:
         """(N,4) uint8."""
         return np.ascontiguousarray(self.buffer[:, 7]).view(np.uint8).reshape(-1, 4)
 
-    def packed(self, highlight_fractured: bool, colour_pieces: bool = False) -> np.ndarray:
+    def packed(self, highlight_fractured: bool, colour_pieces: bool = False,
+               colour_damage: bool = False) -> np.ndarray:
         """The buffer to send: as prepared; with ``colour_pieces`` every Gaussian in its
         fragment's colour (:data:`PIECE_PALETTE` by size rank, :data:`SMALL_PIECE_RGB` for small
-        fragments; nothing changes without fragment ids); with ``highlight_fractured`` the
-        fractured Gaussians in :data:`HIGHLIGHT_RGB` on top. Opacities are kept."""
+        fragments; nothing changes without fragment ids); with ``colour_damage`` in the colour of
+        its particle's damage (:data:`DAMAGE_PALETTE`; over the pieces' colours where both are on);
+        with ``highlight_fractured`` the fractured Gaussians in :data:`HIGHLIGHT_RGB` on top.
+        Opacities are kept."""
         pieces = colour_pieces and self.piece_rank is not None and len(self) > 0
+        damage = colour_damage and self.damage is not None and len(self) > 0
         highlight = highlight_fractured and bool(self.fractured.any())
-        if not pieces and not highlight:
+        if not pieces and not damage and not highlight:
             return self.buffer
         buffer = self.buffer.copy()
         rgba = self.rgba
         if pieces:
             rgba[:, :3] = to_uint8(piece_colours(self.piece_rank))
+        if damage:
+            rgba[:, :3] = to_uint8(damage_colours(self.damage))
         if highlight:
             rgba[self.fractured, :3] = to_uint8(np.asarray(HIGHLIGHT_RGB))
         buffer[:, 7] = rgba.view(np.uint32).reshape(-1)
@@ -93,6 +103,12 @@ def piece_colours(piece_rank: np.ndarray) -> np.ndarray:
     return np.where((piece_rank >= 0)[:, None],
                     PIECE_PALETTE[np.maximum(piece_rank, 0) % len(PIECE_PALETTE)],
                     np.asarray(SMALL_PIECE_RGB))
+
+
+def damage_colours(damage: np.ndarray) -> np.ndarray:
+    """RGB (N,3) in [0,1] of damage values in [0, 1] (:data:`DAMAGE_PALETTE`)."""
+    steps = len(DAMAGE_PALETTE) - 1
+    return DAMAGE_PALETTE[np.clip(np.rint(np.asarray(damage, np.float64) * steps), 0, steps).astype(np.int64)]
 
 
 def to_uint8(values: np.ndarray) -> np.ndarray:
@@ -142,13 +158,15 @@ def dc_colours(sh: np.ndarray) -> np.ndarray:
 
 def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: float,
                   fractured_particles: torch.Tensor | None = None,
-                  particle_piece_rank: torch.Tensor | None = None) -> list[ObjectSplats]:
+                  particle_piece_rank: torch.Tensor | None = None,
+                  particle_damage: torch.Tensor | None = None) -> list[ObjectSplats]:
     """Split ``gaussians`` by object, convert and pack them (see the module docstring).
 
     ``fractured_particles`` (bool per particle) marks the Gaussians that follow a fractured
     particle; FPGO's own Gaussians always count as fractured. ``particle_piece_rank`` (int per
     particle, :func:`fracture_gs.mpm.fragments.piece_ranks`) gives each Gaussian the rank of the
-    fragment of the particle it follows (-1 where it follows none).
+    fragment of the particle it follows (-1 where it follows none); ``particle_damage`` (float per
+    particle) the damage of that particle (0 where it follows none).
     """
     def numpy(values: torch.Tensor) -> np.ndarray:   # numpy from here: no torch thread pool
         return values.detach().cpu().numpy()
@@ -162,12 +180,17 @@ def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: floa
     if particle_piece_rank is not None:
         piece_rank = np.full(len(gaussians), -1, np.int64)
         piece_rank[valid] = numpy(particle_piece_rank.long())[following[valid]]
+    damage = None
+    if particle_damage is not None:
+        damage = np.zeros(len(gaussians), np.float32)
+        damage[valid] = numpy(particle_damage.float())[following[valid]]
     object_id = numpy(gaussians.object_id)
     order = None
     if object_id.size and (np.diff(object_id) < 0).any():   # FPGO may append out of order
         order = np.argsort(object_id, kind="stable")
         object_id, fractured = object_id[order], fractured[order]
         piece_rank = piece_rank[order] if piece_rank is not None else None
+        damage = damage[order] if damage is not None else None
 
     def column(values: torch.Tensor) -> np.ndarray:
         array = numpy(values.float())
@@ -178,10 +201,11 @@ def object_splats(gaussians: FrameGaussians, object_count: int, unit_scale: floa
                          dc_colours(column(gaussians.sh[:, :1])), column(gaussians.opacities))
     bounds = np.searchsorted(object_id, np.arange(object_count + 1))
     return [ObjectSplats(buffer[bounds[i]:bounds[i + 1]], fractured[bounds[i]:bounds[i + 1]],
-                         piece_rank[bounds[i]:bounds[i + 1]] if piece_rank is not None else None)
+                         piece_rank[bounds[i]:bounds[i + 1]] if piece_rank is not None else None,
+                         damage[bounds[i]:bounds[i + 1]] if damage is not None else None)
             for i in range(object_count)]
 
 
-__all__ = ["HIGHLIGHT_RGB", "PIECE_PALETTE", "SMALL_PIECE_RGB", "ObjectSplats", "SplatFrame",
-           "VIEWER_EXTENT", "dc_colours", "object_splats", "pack_splats", "piece_colours", "to_uint8",
-           "unit_scale_for"]
+__all__ = ["DAMAGE_PALETTE", "HIGHLIGHT_RGB", "PIECE_PALETTE", "SMALL_PIECE_RGB", "ObjectSplats", "SplatFrame",
+           "VIEWER_EXTENT", "damage_colours", "dc_colours", "object_splats", "pack_splats", "piece_colours",
+           "to_uint8", "unit_scale_for"]
