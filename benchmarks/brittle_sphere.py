@@ -11,6 +11,7 @@ last frame, the share of particles with complete damage, the fracture energy and
 (kinetic + elastic + gravitational + fracture) energy over its start.
 
     python benchmarks/brittle_sphere.py [--out output/brittle_sphere] [--frames 20] [--grid 96]
+                                        [--fracture-energy 2.0] [--seed 0] [--ratios 0.5 1.26 3.17 8]
 """
 from __future__ import annotations
 
@@ -39,14 +40,16 @@ def p_wave_speed(material: dict) -> float:
     return math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu)) / rho)
 
 
-def scene(speed: float, fragments: bool, grid: int, frames: int, frame_dt: float) -> dict:
+def scene(speed: float, fragments: bool, grid: int, frames: int, frame_dt: float, material: dict,
+          seed: int) -> dict:
     dx = 1.0 / grid
     return {"name": f"brittle_sphere_v{speed:.2f}", "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid},
             "frames": frames, "frame_dt": frame_dt, "gravity": [0, 0, -9.8], "contact": {"fragments": fragments},
+            "seed": seed,
             "boundaries": [{"type": "ground", "height": GROUND, "friction": 0.3}],
             "objects": [{"name": "sphere", "primitive": {"shape": "sphere", "radius": RADIUS},
                          "transform": {"translate": [0.5, 0.5, GROUND + RADIUS + 1.5 * dx]},
-                         "velocity": [0, 0, -speed], "materials": [MATERIAL]}]}
+                         "velocity": [0, 0, -speed], "materials": [material]}]}
 
 
 def summary(folder: Path, speed: float, ratio: float, fragments: bool, wall: float) -> dict:
@@ -71,20 +74,26 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=96)
     parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--frame-dt", type=float, default=0.004)
+    parser.add_argument("--fracture-energy", type=float, default=MATERIAL["fracture_energy"], help="G_f in J/m^2")
+    parser.add_argument("--seed", type=int, default=0, help="the scene's seed (Weibull strengths)")
+    parser.add_argument("--ratios", type=float, nargs="+", default=list(STRESS_RATIOS),
+                        help="impact stress rho c v over the strength, one run (pair) each")
+    parser.add_argument("--fragments-only", action="store_true", help="skip the runs without crack opening")
     args = parser.parse_args()
-    c = p_wave_speed(MATERIAL)
+    material = {**MATERIAL, "fracture_energy": args.fracture_energy}
+    c = p_wave_speed(material)
     runs = []
-    for ratio in STRESS_RATIOS:
-        speed = ratio * MATERIAL["strength"] / (MATERIAL["density"] * c)
-        for fragments in (True, False):
+    for ratio in args.ratios:
+        speed = ratio * material["strength"] / (material["density"] * c)
+        for fragments in (True,) if args.fragments_only else (True, False):
             folder = args.out / f"v{speed:.2f}_fragments_{'on' if fragments else 'off'}"
-            config = parse_scene(scene(speed, fragments, args.grid, args.frames, args.frame_dt))
+            config = parse_scene(scene(speed, fragments, args.grid, args.frames, args.frame_dt, material, args.seed))
             start = time.perf_counter()
             with open(Path("/dev/null"), "w") as quiet:
                 run_simulation(config, folder, device=torch.device("cpu"), progress=False, log=quiet)
             runs.append(summary(folder, speed, ratio, fragments, time.perf_counter() - start))
-    print(json.dumps({"benchmark": "brittle_sphere", "grid": args.grid, "radius": RADIUS, "material": MATERIAL,
-                      "p_wave_speed": round(c, 2), "runs": runs}, indent=2))
+    print(json.dumps({"benchmark": "brittle_sphere", "grid": args.grid, "radius": RADIUS, "material": material,
+                      "seed": args.seed, "p_wave_speed": round(c, 2), "runs": runs}, indent=2))
 
 
 if __name__ == "__main__":

@@ -50,6 +50,7 @@ class RunSummary:
     fractured: int
     particles: int
     clamped: int                 # particles clamped into the domain, summed over frames
+    fracture_energy: float = 0.0  # energy brittle damage took by the last frame
 
 
 class InvalidInput(ValueError):
@@ -189,6 +190,12 @@ def _print_summary(summary: RunSummary, stream: TextIO) -> None:
         f"{balance_rel:.3g} relative)",
         f"  energy change  {summary.energy_start:.6g} -> {summary.energy_end:.6g} "
         f"({d_energy:+.4g}, {rel_e:+.2%})",
+    ]
+    if summary.fracture_energy > 0:
+        balance = summary.energy_end + summary.fracture_energy - summary.energy_start
+        lines.append(f"  fracture energy {summary.fracture_energy:.4g} taken by damage (energy + fracture energy: "
+                     f"{balance:+.4g}, {balance / abs(summary.energy_start) if summary.energy_start else float('nan'):+.2%})")
+    lines += [
         f"  fractured      {summary.fractured / max(summary.particles, 1):.2%} "
         f"({summary.fractured} of {summary.particles} particles)",
         f"  clamped        {summary.clamped} particle clamps into the domain (summed over frames)",
@@ -244,7 +251,8 @@ def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int
         momentum_balance=float(np.linalg.norm(p1 - p0 - impulse)),
         external_impulse=float(np.linalg.norm(impulse)),
         energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
-        fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped)
+        fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped,
+        fracture_energy=float(col["fracture_energy"][-1]) if "fracture_energy" in col else 0.0)
 
 
 def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.device,
