@@ -17,7 +17,7 @@ import torch
 from fracture_gs.mpm import ops, reference
 from fracture_gs.mpm.grid import GridFields, GridGeometry, ParticleBins, node_coords
 from fracture_gs.materials import BrittleMaterial, ElasticMaterial, MaterialTable, NACCMaterial
-from fracture_gs.mpm.types import BLOCK, Domain
+from fracture_gs.mpm.types import BLOCK, CONTACT_INSIDE_CELLS, Domain
 from kernel_devices import KERNEL_DEVICES
 
 pytestmark = pytest.mark.extension  # tests/conftest.py: skipped without _C, failed in CI
@@ -211,7 +211,7 @@ def test_collision_matches_reference_and_conserves_momentum(friction, n_grids, s
     max_gap = float(0.5 * (middle[widest] + middle[widest + 1]))
     compiled = collision_on(device, bins, fields, geometry, strength, friction, max_gap)
     twin = double_copy(fields)
-    reference.collision(twin, strength, friction, 1e-12, max_gap)
+    reference.collision(twin, strength, friction, 1e-12, max_gap, CONTACT_INSIDE_CELLS * geometry.dx)
     changed = (twin.velocity != fields.velocity.double()).any(-1)
     assert bool(changed.any()), "the test setup must produce contacts"
     assert rel_err(compiled.velocity, twin.velocity) < REL_TOL
@@ -284,6 +284,41 @@ def test_contact_needs_the_mass_centres_within_the_gap(backend, device):
     # Without the check (max_gap = inf, SPEC §5.4 as written) the distant pair is a contact too.
     assert not torch.equal(contact_at_one_node(backend, device, 1.0, 0.0, gap_in_cells=1.2,
                                                max_gap_cells=math.inf), untouched)
+
+
+def sheet_and_block_at_one_node(backend: str, device: str, sheet_gradient: tuple[float, float, float],
+                                 sheet_centre: float, block_centre: float) -> torch.Tensor:
+    """Velocities (2, 3) after the contact pass at one node between a one-layer sheet a (mass 1,
+    v = (1, 0.5, 0), its particles ``sheet_centre`` cells along +x from the node) and a block b
+    (mass 2, at rest, surface normal -x, mass centre ``block_centre`` cells along +x)."""
+    geometry = GridGeometry.from_domain(Domain((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 8), 2)
+    fields = grids(geometry)
+    node = 5
+    fields.mass[0, node], fields.mass[1, node] = 1.0, 2.0
+    fields.velocity[0, node] = torch.tensor([1.0, 0.5, 0.0])
+    fields.mass_gradient[0, node] = torch.tensor(sheet_gradient)
+    fields.mass_gradient[1, node] = torch.tensor([-5.0, 0.0, 0.0])
+    fields.position_moment[0, node] = torch.tensor([sheet_centre * geometry.dx, 0.0, 0.0])
+    fields.position_moment[1, node] = torch.tensor([2.0 * block_centre * geometry.dx, 0.0, 0.0])
+    fields = moved(fields, device)
+    bins = ParticleBins(*([torch.zeros(0, dtype=torch.int32)] * 6), torch.zeros(1, dtype=torch.int32))
+    ops.collision(bins_on(bins, device), geometry, 1.0, 0.0, 1e-12, 0.9 * geometry.dx, fields, backend=backend)
+    return fields.velocity[:, node].cpu().double()
+
+
+@pytest.mark.parametrize("backend,device", BACKEND_DEVICES)
+def test_contact_normal_where_a_sheet_gives_none(backend, device):
+    # The normal is the block's (+x) alone: j_n = 2/3 along x, the sheet's sliding speed is kept.
+    expected = torch.tensor([[1 / 3, 0.5, 0.0], [1 / 3, 0.0, 0.0]], dtype=torch.float64)
+    # The sheet passes 0.1 cell from the node, the block's surface about 0.1 cell beyond it: the
+    # sheet's mass gradient there points along it (toward an edge, +y), and the averaged normal
+    # would be (1, 1, 0) / sqrt 2.
+    v = sheet_and_block_at_one_node(backend, device, (0.0, 3.0, 0.0), 0.1, 0.5)
+    assert torch.allclose(v, expected, atol=1e-6)
+    # The node lies behind the sheet (0.6 cell before it): the sheet's gradient points away from the
+    # block, the averaged normal cancels, and the node used to carry no contact.
+    v = sheet_and_block_at_one_node(backend, device, (-3.0, 0.0, 0.0), 0.6, 1.2)
+    assert torch.allclose(v, expected, atol=1e-6)
 
 
 @pytest.mark.parametrize("device", KERNEL_DEVICES)

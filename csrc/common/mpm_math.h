@@ -92,11 +92,27 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
 // particle spacing; bodies further apart give more. The rest-volume check it replaces (V_a +
 // V_b >= 0.75 dx^3) never fired for thin or surface-only bodies, which then passed through each
 // other.
+//
+// Normal: SPEC §5.4's normalize(g_a / |g_a| - g_b / |g_b|) needs both unit gradients to be the
+// bodies' surface normals, which fails for a one-layer sheet (a shard) at two kinds of nodes, and
+// there the other body's unit gradient alone is the normal:
+//  * nodes inside a body's mass, where its mass centre lies within `inside` (0.4 dx) of the node
+//    and the other body's does not: a sheet passing through the node has almost no gradient across
+//    it, and what is left points along it (toward its edge, along its density variations);
+//  * nodes behind a body: its unit gradient points away from the other body's mass centre
+//    (g_a . d <= 0 with d = s_b / m_b - s_a / m_a) while the other's points toward it. Seen from
+//    the far side of a sheet, g_a points away from the body it meets; the average of the two unit
+//    gradients then cancels, and those nodes, whose velocities the sheet's particles also gather,
+//    carried no contact at all.
+// Elsewhere (both bodies outside each other's mass, each gradient facing the other body, as for
+// thick bodies and their corners) the normal is SPEC's, so the gap check still rejects the tilted
+// normals at a sliding block's corners.
 struct ContactParams {
   float strength;  // s = contact.strength, 0 <= s <= 2
   float friction;  // Coulomb coefficient mu_f between the bodies
   float mass_eps;  // nodes with mass <= mass_eps carry no field
   float max_gap;   // contact where the mass-centre gap along n is below this (length units)
+  float inside;    // a body whose mass centre lies closer than this to the node gives no normal (length)
 };
 
 // One body's field at a node.
@@ -107,24 +123,50 @@ struct ContactSide {
   const float* position_moment;   // 3 floats
 };
 
-// Contact normal n = normalize(g_a / |g_a| - g_b / |g_b|), from a toward b. False where either
-// gradient vanishes or the two cancel (no direction).
-HOST_DEVICE inline bool contact_normal(const float* ga, const float* gb, float n[3]) {
-  const float na = sqrtf(ga[0] * ga[0] + ga[1] * ga[1] + ga[2] * ga[2]);
-  const float nb = sqrtf(gb[0] * gb[0] + gb[1] * gb[1] + gb[2] * gb[2]);
-  if (!(na > 0.f) || !(nb > 0.f)) return false;
-  for (int d = 0; d < 3; ++d) n[d] = ga[d] / na - gb[d] / nb;
-  const float nn = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-  if (!(nn > 1e-6f)) return false;
-  for (int d = 0; d < 3; ++d) n[d] /= nn;
-  return true;
+// Unit vector along g (zero where g vanishes); returns |g|.
+HOST_DEVICE inline float contact_unit(const float* g, float u[3]) {
+  const float norm = sqrtf(g[0] * g[0] + g[1] * g[1] + g[2] * g[2]);
+  for (int d = 0; d < 3; ++d) u[d] = norm > 0.f ? g[d] / norm : 0.f;
+  return norm;
 }
 
-// Gap between the two bodies' mass centres at the node along n: (s_b / m_b - s_a / m_a) . n.
-HOST_DEVICE inline float contact_gap(const ContactSide& a, const ContactSide& b, const float n[3]) {
-  float gap = 0.f;
-  for (int d = 0; d < 3; ++d) gap += (b.position_moment[d] / b.mass - a.position_moment[d] / a.mass) * n[d];
-  return gap;
+// Offset between the two bodies' mass centres seen from the node, d = s_b / m_b - s_a / m_a.
+HOST_DEVICE inline void contact_offset(const ContactSide& a, const ContactSide& b, float d[3]) {
+  for (int k = 0; k < 3; ++k) d[k] = b.position_moment[k] / b.mass - a.position_moment[k] / a.mass;
+}
+
+// True if the body's mass centre seen from the node, s / m, lies closer than `inside` to it.
+HOST_DEVICE inline bool contact_inside(const ContactSide& k, float inside) {
+  const float* s = k.position_moment;
+  const float r = inside * k.mass;
+  return s[0] * s[0] + s[1] * s[1] + s[2] * s[2] < r * r;
+}
+
+// Contact normal from a toward b (see above), given the mass-centre offset d:
+// n = normalize(w_a u_a - w_b u_b) with the unit gradients u and w = 1, except w = 0 for
+//   1. the body whose mass centre lies within `inside` of the node, if the other's does not;
+//   2. otherwise the body whose unit gradient does not point toward the other's mass centre
+//      (u_a . d <= 0 for a, u_b . d >= 0 for b), if the other's does.
+// False where a gradient that is used vanishes, or the two cancel (no direction).
+HOST_DEVICE inline bool contact_normal(const ContactSide& a, const ContactSide& b, const float d[3], float inside,
+                                       float n[3]) {
+  float ua[3], ub[3];
+  const float na = contact_unit(a.mass_gradient, ua), nb = contact_unit(b.mass_gradient, ub);
+  const bool a_inside = contact_inside(a, inside), b_inside = contact_inside(b, inside);
+  const bool a_faces_b = ua[0] * d[0] + ua[1] * d[1] + ua[2] * d[2] > 0.f;
+  const bool b_faces_a = ub[0] * d[0] + ub[1] * d[1] + ub[2] * d[2] < 0.f;
+  float wa = 1.f, wb = 1.f;
+  if (a_inside != b_inside) {
+    (a_inside ? wa : wb) = 0.f;
+  } else if (a_faces_b != b_faces_a) {
+    (a_faces_b ? wb : wa) = 0.f;
+  }
+  if ((wa > 0.f && !(na > 0.f)) || (wb > 0.f && !(nb > 0.f))) return false;
+  for (int k = 0; k < 3; ++k) n[k] = wa * ua[k] - wb * ub[k];
+  const float nn = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+  if (!(nn > 1e-6f)) return false;
+  for (int k = 0; k < 3; ++k) n[k] /= nn;
+  return true;
 }
 
 // The impulse of SPEC §5.4 (Bardenhagen's centre-of-mass form) along the unit normal n: applied
@@ -156,13 +198,15 @@ HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb
 }
 
 // The contact decision and impulse between two fields at one node: both carry mass, the normal
-// is defined, the mass centres are closer than max_gap along it, and the fields approach.
+// is defined, the mass centres are closer than max_gap along it (d . n < max_gap), and the fields
+// approach.
 // Returns true if an impulse was applied.
 HOST_DEVICE inline bool contact_pair(const ContactSide& a, const ContactSide& b, const ContactParams& c) {
   if (!(a.mass > c.mass_eps) || !(b.mass > c.mass_eps)) return false;
-  float n[3];
-  if (!contact_normal(a.mass_gradient, b.mass_gradient, n)) return false;
-  if (!(contact_gap(a, b, n) < c.max_gap)) return false;
+  float d[3], n[3];
+  contact_offset(a, b, d);
+  if (!contact_normal(a, b, d, c.inside, n)) return false;
+  if (!(d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < c.max_gap)) return false;
   return contact_impulse(a.mass, b.mass, a.velocity, b.velocity, n, c.strength, c.friction);
 }
 

@@ -9,6 +9,7 @@ import torch
 from fracture_gs._backend import compiled_module, use_compiled
 from fracture_gs.mpm import reference
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
+from fracture_gs.mpm.types import CONTACT_INSIDE_CELLS
 
 WALL_CONDITIONS = reference.WALL_CONDITIONS
 
@@ -71,12 +72,15 @@ def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, 
 def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, friction: float, mass_eps: float,
               max_gap: float, grid: GridFields, backend: str = "auto") -> None:
     """Contact impulses between object grids (SPEC §5.4) where the bodies' mass centres at a node are
-    closer than ``max_gap`` (a length) along the contact normal."""
+    closer than ``max_gap`` (a length) along the contact normal. A body whose mass centre lies within
+    ``CONTACT_INSIDE_CELLS`` of a node gives no normal there (the other body's is used)."""
+    inside = CONTACT_INSIDE_CELLS * geometry.dx
     if use_compiled(grid.mass.device, backend):
         compiled_module().mpm_collision(bins.contact_blocks, *geometry.args(), strength, friction, mass_eps,
-                                        max_gap, grid.mass, grid.velocity, grid.mass_gradient, grid.position_moment)
+                                        max_gap, inside, grid.mass, grid.velocity, grid.mass_gradient,
+                                        grid.position_moment)
     else:
-        reference.collision(grid, strength, friction, mass_eps, max_gap)
+        reference.collision(grid, strength, friction, mass_eps, max_gap, inside)
 
 
 def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,

@@ -267,12 +267,16 @@ def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, gr
     grid.velocity.copy_(torch.where((grid.mass > mass_eps)[..., None], new_v, velocity))
 
 
-def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, max_gap: float) -> None:
+def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, max_gap: float,
+              inside: float) -> None:
     """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4).
 
-    A node is a contact only where both bodies have mass, the normal n = normalize(ĝa − ĝb) is
-    defined and the bodies' mass centres at the node, s_k / m_k, are closer than ``max_gap``
-    along n (a length); the impulse is applied only while they approach.
+    A node is a contact only where both bodies have mass, the normal is defined and the bodies'
+    mass centres at the node, s_k / m_k, are closer than ``max_gap`` along it (a length); the
+    impulse is applied only while they approach. The normal is normalize(w_a ĝa − w_b ĝb) with
+    w = 1, except w = 0 for the body whose mass centre lies within ``inside`` (a length) of the
+    node while the other's does not, or else for the body whose ĝ does not point toward the other
+    body's mass centre while the other's does (``contact_normal`` in csrc/common/mpm_math.h).
     """
     assert grid.mass_gradient is not None and grid.position_moment is not None, "collision needs contact fields"
     n_grids = grid.mass.shape[0]
@@ -282,13 +286,22 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
             va, vb = grid.velocity[a], grid.velocity[b]
             ga, gb = grid.mass_gradient[a], grid.mass_gradient[b]
             na, nb = ga.norm(dim=-1, keepdim=True), gb.norm(dim=-1, keepdim=True)
-            both = (ma > mass_eps) & (mb > mass_eps) & (na[:, 0] > 0) & (nb[:, 0] > 0)
-            normal = ga / na.clamp_min(1e-30) - gb / nb.clamp_min(1e-30)
+            ua = torch.where(na > 0, ga / na.clamp_min(1e-30), torch.zeros_like(ga))
+            ub = torch.where(nb > 0, gb / nb.clamp_min(1e-30), torch.zeros_like(gb))
+            has_mass = (ma > mass_eps) & (mb > mass_eps)
+            centre_a = grid.position_moment[a] / torch.where(has_mass, ma, torch.ones_like(ma))[:, None]
+            centre_b = grid.position_moment[b] / torch.where(has_mass, mb, torch.ones_like(mb))[:, None]
+            offset = centre_b - centre_a
+            inside_a, inside_b = centre_a.norm(dim=-1) < inside, centre_b.norm(dim=-1) < inside
+            a_faces_b, b_faces_a = (ua * offset).sum(-1) > 0, (ub * offset).sum(-1) < 0
+            one_inside, one_faces = inside_a != inside_b, a_faces_b != b_faces_a
+            use_a = torch.where(one_inside, inside_b, torch.where(one_faces, a_faces_b, torch.ones_like(one_faces)))
+            use_b = torch.where(one_inside, inside_a, torch.where(one_faces, b_faces_a, torch.ones_like(one_faces)))
+            both = has_mass & (~use_a | (na[:, 0] > 0)) & (~use_b | (nb[:, 0] > 0))
+            normal = use_a[:, None] * ua - use_b[:, None] * ub
             normal_len = normal.norm(dim=-1, keepdim=True)
             normal = normal / normal_len.clamp_min(1e-30)
-            centre_a = grid.position_moment[a] / torch.where(both, ma, torch.ones_like(ma))[:, None]
-            centre_b = grid.position_moment[b] / torch.where(both, mb, torch.ones_like(mb))[:, None]
-            gap = ((centre_b - centre_a) * normal).sum(-1)
+            gap = (offset * normal).sum(-1)
             vrel = va - vb
             vn = (vrel * normal).sum(-1, keepdim=True)
             active = both & (normal_len[:, 0] > 1e-6) & (gap < max_gap) & (vn[:, 0] > 0)

@@ -11,6 +11,9 @@ from fracture_gs.config.scene import DEFAULT_FRAGMENTS
 
 BLOCK = 4  # grid block edge in nodes; grids are padded to a multiple of it
 CONTACT_GAP_CELLS = 0.9  # default ContactSettings.max_gap (see docs/design_mpm.md, contact detection)
+# A body whose mass centre seen from a node lies closer than this to it (in cells) gives no contact
+# normal there: the node sits inside its mass, e.g. in a one-layer sheet (docs/design_mpm.md).
+CONTACT_INSIDE_CELLS = 0.4
 # Default ContactSettings.split_gradient: a node is split into two crack sides where the largest
 # particle damage gradient reaching it is at least this, in 1/cells (docs/design_mpm.md, fragments).
 SPLIT_GRADIENT_CELLS = 0.25
