@@ -106,6 +106,8 @@ class CollisionMPM:
         self.fracture_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
         # Normal of the crack plane of every brittle particle with complete damage (0 elsewhere), solver order.
         self.crack_normal = (torch.zeros(len(self.particles), 3, device=self.device) if self.has_brittle else None)
+        self._cracked: torch.Tensor | None = None   # rows with a crack normal (cache; None: to be found)
+        self._brittle_particle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
         self.fragment_radius = link_radius(self.particles.rest_volume)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -206,8 +208,7 @@ class CollisionMPM:
         self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
         if self.has_brittle:
-            self.fracture_energy += self._dissipated(s.alpha, alpha, F_E)
-            self._update_crack_normals(s.alpha, alpha, F_E, C, dt)
+            self._brittle_substep(s.alpha, alpha, F_E, C, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -236,44 +237,42 @@ class CollisionMPM:
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
                                           self.split_gradient, side_mask.contiguous())
 
-    def _dissipated(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor) -> torch.Tensor:
-        """(n_objects,) float64 energy the substep's damage took: Σ (g(d_old) − g(d_new)) ψ⁺(F_E) V_p over
-        the brittle particles whose damage grew (the elastic energy g ψ⁺ + ψ⁻ loses exactly that)."""
-        p = self.particles
-        brittle = torch.index_select(self.brittle_material, 0, p.material_id)
-        grew = torch.nonzero(brittle & (damage_new > damage_old)).flatten()
-        out = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+    def _brittle_substep(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor,
+                         C: torch.Tensor, dt: float) -> None:
+        """What a substep did to the brittle particles: the energy their damage took,
+        Σ (g(d_old) − g(d_new)) ψ⁺(F_E) V_p over those whose damage grew (the elastic energy
+        g ψ⁺ + ψ⁻ loses exactly that), added to ``fracture_energy`` per object; and their crack
+        planes. A new crack's normal is the direction of the particle's largest principal stretch (of
+        its largest principal stress, Rankine) when its damage becomes complete; afterwards the normal
+        is carried with the material like the normal of a material plane, n ← (I − dt Cᵀ) n,
+        normalised."""
+        assert self.crack_normal is not None
+        if self._cracked is None:   # rows with a crack normal, in the current particle order
+            self._cracked = torch.nonzero((self.crack_normal != 0).any(1)).flatten()
+        if len(self._cracked):
+            normal = self.crack_normal[self._cracked]
+            normal = normal - dt * (C[self._cracked].mT @ normal[:, :, None])[:, :, 0]
+            self.crack_normal[self._cracked] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
+        grew = torch.nonzero(self._brittle_particle & (damage_new > damage_old)).flatten()
         if len(grew) == 0:
-            return out
+            return
+        p = self.particles
         rows = self.material_table[p.material_id[grew].long()].double()
         residual = rows[:, COLUMN["residual"]]
-        degradation_drop = ((1.0 - damage_old[grew].double()) ** 2 - (1.0 - damage_new[grew].double()) ** 2) \
-            * (1.0 - residual)
+        old, new = damage_old[grew].double(), damage_new[grew].double()
+        degradation_drop = ((1.0 - old) ** 2 - (1.0 - new) ** 2) * (1.0 - residual)
         tensile = BrittleMaterial.tensile_energy_rows(F_E[grew].double(), rows)
         energy = degradation_drop * tensile * p.rest_volume[grew].double()
-        return out.index_add_(0, p.obj_id[grew].long(), energy)
-
-    def _update_crack_normals(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor,
-                              C: torch.Tensor, dt: float) -> None:
-        """Crack planes of brittle particles with complete damage: a new crack's normal is the direction of
-        the particle's largest principal stretch (of its largest principal stress, Rankine) when it
-        cracks; afterwards the normal is carried with the material like the normal of a material plane,
-        n ← (I − dt Cᵀ) n, normalised."""
-        assert self.crack_normal is not None
-        cracked = torch.nonzero((self.crack_normal != 0).any(1)).flatten()
-        if len(cracked):
-            normal = self.crack_normal[cracked]
-            normal = normal - dt * (C[cracked].mT @ normal[:, :, None])[:, :, 0]
-            self.crack_normal[cracked] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
-        brittle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
-        new = torch.nonzero(brittle & (damage_new >= 1.0) & (damage_old < 1.0)).flatten()
-        if len(new):
-            F = F_E[new].double()
+        self.fracture_energy.index_add_(0, p.obj_id[grew].long(), energy)
+        cracked_now = grew[new >= 1.0]   # grew to 1 in this substep (it was below 1 before)
+        if len(cracked_now):
+            F = F_E[cracked_now].double()
             _, vectors = torch.linalg.eigh(F @ F.mT)
             normal = vectors[:, :, -1]
             orientation = torch.tensor(_CRACK_ORIENTATION, dtype=normal.dtype, device=normal.device)
             sign = torch.where(normal @ orientation < 0, -1.0, 1.0).to(normal.dtype)
-            self.crack_normal[new] = (normal * sign[:, None]).float()
+            self.crack_normal[cracked_now] = (normal * sign[:, None]).float()
+            self._cracked = torch.cat([self._cracked, cracked_now])
 
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
@@ -293,6 +292,8 @@ class CollisionMPM:
             self.strength = torch.index_select(self.strength, 0, order)
         if self.crack_normal is not None:
             self.crack_normal = torch.index_select(self.crack_normal, 0, order)
+        self._brittle_particle = torch.index_select(self._brittle_particle, 0, order)
+        self._cracked = None
         self.input_index = torch.index_select(self.input_index, 0, order)
 
     def state_in_input_order(self) -> SimState:
@@ -434,6 +435,8 @@ class CollisionMPM:
                 raise ValueError("checkpoint 'input_index' is not a permutation of the scene's particles")
         self.particles = self.input_particles.take(order)
         self.strength = torch.index_select(self.input_strength, 0, order) if self.input_strength is not None else None
+        self._brittle_particle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
+        self._cracked = None
         self.grid_id = self._grid_ids(self.particles)
         self.input_index = order
         self.stress = tensors.pop("stress").float()
