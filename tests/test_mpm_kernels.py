@@ -350,11 +350,13 @@ def material_table() -> torch.Tensor:
 
 def g2p_on(device: str, p: dict, F_E, alpha, fractured, material_id, table, fields: GridFields,
            geometry: GridGeometry, dt: float, strength: torch.Tensor | None = None):
-    """The compiled G2P on ``device``; tensors back on the CPU, the stats as they are."""
+    """The compiled G2P on ``device``; tensors back on the CPU, the stats as they are, and with
+    ``strength`` the energy the brittle damage took (per unit rest volume) last."""
     on = [t.to(device) for t in (p["x"], F_E, alpha, fractured, p["grid_id"], material_id, table)]
+    dissipated = torch.full((len(p["x"]),), float("nan"), device=device) if strength is not None else None
     out = ops.g2p(*on, moved(fields, device), geometry, dt, backend="cpp",
-                  strength=strength.to(device) if strength is not None else None)
-    return [t.cpu() for t in out[:7]] + [out[7]]
+                  strength=strength.to(device) if strength is not None else None, dissipated=dissipated)
+    return [t.cpu() for t in out[:7]] + [out[7]] + ([dissipated.cpu()] if dissipated is not None else [])
 
 
 @pytest.mark.parametrize("device", KERNEL_DEVICES)
@@ -406,9 +408,10 @@ def test_g2p_with_brittle_particles_matches_reference(device):
     fractured = alpha >= 0.5
     dt = 2e-4
     out = g2p_on(device, p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
+    twin_dissipated = torch.empty(n, dtype=torch.float64)
     twin = reference.g2p(double(p["x"]), double(F_E), double(alpha), fractured, p["grid_id"], material_id,
                          table.double(), fields.velocity.double(), geometry, dt, *geometry.clamp_bounds(),
-                         strength=strength)
+                         strength=strength, dissipated=twin_dissipated)
     for name, a, b in zip(["x", "v", "C", "F_E", "stress"], [out[i] for i in (0, 1, 2, 3, 5)],
                           [twin[i] for i in (0, 1, 2, 3, 5)]):
         assert rel_err(a, b) < REL_TOL, name
@@ -416,6 +419,11 @@ def test_g2p_with_brittle_particles_matches_reference(device):
     assert int(grew.sum()) > 100, "the substep must damage a fair share of the brittle particles"
     assert float((out[4].double() - twin[4]).abs().max()) < 2e-3
     assert float((out[6] != twin[6]).float().mean()) < 1e-3
+    # The energy the damage took: the kernel's own (g(d_old) - g(d)) psi+ against the twin's.
+    dissipated = out[8].double()
+    assert bool((dissipated[~grew & (out[4].double() == alpha.double())] == 0).all())
+    assert float(twin_dissipated.sum()) > 0 and float(dissipated.min()) >= 0
+    assert float(dissipated.sum()) == pytest.approx(float(twin_dissipated.sum()), rel=2e-3)
     if device != "cpu":
         cpu = g2p_on("cpu", p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
         assert rel_err(out[5], cpu[5]) < REL_TOL and float((out[4] - cpu[4]).abs().max()) < 2e-3

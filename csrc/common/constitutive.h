@@ -127,6 +127,13 @@ HOST_DEVICE inline double brittle_energy_density(double mu, double lambda, doubl
   return brittle_degradation(d, residual) * tensile + compressive;
 }
 
+// psi+ = mu sum <eps_i>+^2 + lambda/2 <e>+^2 of principal strains eps (sum e): the energy damage degrades.
+HOST_DEVICE inline double brittle_tensile_energy(double mu, double lambda, const double eps[3], double e) {
+  double tensile = e > 0.0 ? 0.5 * lambda * e * e : 0.0;
+  for (int i = 0; i < 3; ++i) tensile += eps[i] > 0.0 ? mu * eps[i] * eps[i] : 0.0;
+  return tensile;
+}
+
 namespace constitutive_detail {
 
 HOST_DEVICE inline double hencky(double s) {
@@ -287,8 +294,10 @@ HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alp
 }
 
 // Brittle model: F unchanged (no plasticity), alpha = damage d updated, tau = degraded stress of F.
-// strength: the particle's tensile strength (Weibull-distributed per particle, or the row's).
-HOST_DEVICE inline void brittle_update(const float* mat_row, float strength, float F[9], float* alpha, float tau[9]) {
+// strength: the particle's tensile strength (Weibull-distributed per particle, or the row's);
+// dissipated (may be nullptr): the energy per unit rest volume the damage took, (g(d_old) - g(d)) psi+.
+HOST_DEVICE inline void brittle_update(const float* mat_row, float strength, float F[9], float* alpha, float tau[9],
+                                       float* dissipated) {
   const double mu = mat_row[kMatMu], lambda = mat_row[kMatLambda], K = mat_row[kMatBulk];
   double U[9], eps[3], V[9];
   constitutive_detail::principal_strain(F, U, eps, V);
@@ -300,14 +309,19 @@ HOST_DEVICE inline void brittle_update(const float* mat_row, float strength, flo
                                brittle_principal_stress(mu, lambda, r.g, eps[1], e),
                                brittle_principal_stress(mu, lambda, r.g, eps[2], e)};
   constitutive_detail::compose_symmetric(U, principal, tau);
+  if (dissipated != nullptr)
+    *dissipated = static_cast<float>((brittle_degradation(*alpha, mat_row[kMatResidual]) - r.g) *
+                                     brittle_tensile_energy(mu, lambda, eps, e));
   *alpha = static_cast<float>(r.damage);
 }
 
 // Dispatch on the model column. F: F_trial in, F_E out; alpha: in/out; tau: Kirchhoff stress;
-// strength: the particle's tensile strength (read by the brittle model only).
+// strength: the particle's tensile strength (read by the brittle model only); dissipated (may be
+// nullptr): the energy per unit rest volume the brittle damage took (0 for the other models).
 // An unknown model code gives NaN outputs (the solver's blow-up check reports it).
 HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], float* alpha, float tau[9],
-                                            float strength) {
+                                            float strength, float* dissipated = nullptr) {
+  if (dissipated != nullptr) *dissipated = 0.f;
   // A non-finite input must stay visible: the return map's branches would otherwise turn a NaN
   // F into a finite tip projection and hide a blow-up.
   float probe = *alpha * 0.f;
@@ -322,7 +336,7 @@ HOST_DEVICE inline void constitutive_update(const float* mat_row, float F[9], fl
   } else if (model == kModelNacc) {
     nacc_update(mat_row, F, alpha, tau);
   } else if (model == kModelBrittle) {
-    brittle_update(mat_row, strength, F, alpha, tau);
+    brittle_update(mat_row, strength, F, alpha, tau, dissipated);
   } else {
     constitutive_detail::fill_nan(F, alpha, tau);
   }

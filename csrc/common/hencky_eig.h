@@ -200,8 +200,9 @@ struct EigProjection {
 // in/out; tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E.
 // Returns false (outputs meaningless) where the caller must use constitutive_update instead:
 // see the file comment.
+// dissipated: the energy per unit rest volume the brittle damage took in this update (0 otherwise).
 HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, const float F[9], float* alpha,
-                                                float tau[9], EigProjection* proj) {
+                                                float tau[9], EigProjection* proj, float* dissipated) {
   double Fd[9], b[6];
   const double det = cauchy_green_minus_identity(F, Fd, b);
   double Q[9];
@@ -271,6 +272,9 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
     const double brittle = brittle_principal_stress(mu, lambda, ret.shear, dev[i] + e * (1.0 / 3.0), e);
     d[i] = is_brittle ? brittle : 2.0 * mu * ret.shear * dev[i] + bulk_term;
   }
+  const double principal_strain[3] = {dev[0] + e * (1.0 / 3.0), dev[1] + e * (1.0 / 3.0), dev[2] + e * (1.0 / 3.0)};
+  const double taken = (brittle_degradation(a, m.c6) - ret.shear) * brittle_tensile_energy(mu, lambda, principal_strain, e);
+  *dissipated = is_brittle ? (float)taken : 0.f;
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i)
 #pragma GCC unroll 9

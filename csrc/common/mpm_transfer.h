@@ -51,6 +51,7 @@ struct G2POutputs {
   float* alpha;
   float* stress;
   uint8_t* fractured;
+  float* dissipated = nullptr;  // (N) energy per unit rest volume brittle damage took in the substep, or nullptr
 };
 
 // Health of the particles after G2P, reduced over all particles (order-independent).
@@ -159,9 +160,11 @@ HOST_DEVICE inline const float* g2p_material_row(long long q, const G2PInputs& i
   return in.material_table + (long long)in.material_id[q] * kMatFields;
 }
 
-// Stores the result of particle q's return map and latches its fracture flag.
+// Stores the result of particle q's return map (and the energy its damage took) and latches its
+// fracture flag.
 HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, const G2POutputs& out, const float F_E[9],
-                                           float alpha, const float tau[9]) {
+                                           float alpha, const float tau[9], float dissipated) {
+  if (out.dissipated != nullptr) out.dissipated[q] = dissipated;
   for (int i = 0; i < 9; ++i) {
     out.F_E[9 * q + i] = F_E[i];
     out.stress[9 * q + i] = tau[i];
@@ -177,8 +180,9 @@ HOST_DEVICE inline void g2p_material(long long q, const G2PInputs& in, const G2P
   float alpha = in.alpha[q];
   float tau[9];
   const float* row = g2p_material_row(q, in);
-  constitutive_update(row, F, &alpha, tau, particle_strength(in.strength, q, row));
-  g2p_store_material(q, in, out, F, alpha, tau);
+  float dissipated;
+  constitutive_update(row, F, &alpha, tau, particle_strength(in.strength, q, row), &dissipated);
+  g2p_store_material(q, in, out, F, alpha, tau, dissipated);
 }
 
 HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,

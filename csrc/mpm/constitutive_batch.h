@@ -43,6 +43,7 @@ struct ConstitutiveBatch {
   float F_out[9][kBatchLanes];
   float alpha_out[kBatchLanes];
   float tau[9][kBatchLanes];
+  float dissipated[kBatchLanes];       // energy per unit rest volume the brittle damage took (output)
   int32_t valid[kBatchLanes];  // 1 where the eigen path handled the lane (int32: a bool store blocks vectorising)
 
   // Lane l takes F_trial, alpha, a material-table row (kMatFields floats) and the particle's strength.
@@ -72,7 +73,7 @@ struct ConstitutiveBatch {
   void run(int count) {
     {
       FlushDenormals guard;
-      eigen_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], valid);
+      eigen_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], dissipated, valid);
     }
     for (int l = 0; l < count; ++l) {
       if (valid[l]) continue;
@@ -80,7 +81,7 @@ struct ConstitutiveBatch {
       for (int i = 0; i < 9; ++i) Fl[i] = F[i][l];
       for (int k = 0; k < kMatFields; ++k) mat_row[k] = row[k][l];
       float a = alpha_in[l];
-      constitutive_update(mat_row, Fl, &a, tl, strength[l]);
+      constitutive_update(mat_row, Fl, &a, tl, strength[l], &dissipated[l]);
       for (int i = 0; i < 9; ++i) {
         F_out[i][l] = Fl[i];
         tau[i][l] = tl[i];
@@ -106,7 +107,7 @@ struct ConstitutiveBatch {
   static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
                           const float* FGS_RESTRICT rows, const float* FGS_RESTRICT strength,
                           float* FGS_RESTRICT F_E, float* FGS_RESTRICT alpha_new,
-                          float* FGS_RESTRICT tau_out, int32_t* FGS_RESTRICT ok) {
+                          float* FGS_RESTRICT tau_out, float* FGS_RESTRICT dissipated, int32_t* FGS_RESTRICT ok) {
     double Q[9][kBatchLanes], log_stretch[3][kBatchLanes];
     float projected[kBatchLanes];
     // `#pragma omp simd` would turn the callee's by-reference locals into per-lane arrays before
@@ -117,7 +118,9 @@ struct ConstitutiveBatch {
       const MaterialRow m = load_lane(F_in, rows, strength, l, Fl);
       float a = alpha[l];
       EigProjection proj;
-      ok[l] = constitutive_stress_eig(m, Fl, &a, tl, &proj) ? 1 : 0;
+      float taken;
+      ok[l] = constitutive_stress_eig(m, Fl, &a, tl, &proj, &taken) ? 1 : 0;
+      dissipated[l] = taken;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
         tau_out[i * kBatchLanes + l] = tl[i];
@@ -156,6 +159,8 @@ struct ConstitutiveBatch {
   void run_small_strain(int32_t small[kBatchLanes]) {
     FlushDenormals guard;
     small_strain_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], small);
+    // The series path never takes a brittle state whose damage grows (it is left to the eigen path).
+    for (int l = 0; l < kBatchLanes; ++l) dissipated[l] = 0.f;
   }
 
   static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
@@ -188,13 +193,14 @@ struct ConstitutiveBatch {
     for (int k = 0; k < kMatFields; ++k) row[k][l] = other.row[k][from];
   }
 
-  void get(int l, float* F_E, float* alpha, float* tau_out) const {
+  void get(int l, float* F_E, float* alpha, float* tau_out, float* taken) const {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) {
       F_E[i] = F_out[i][l];
       tau_out[i] = tau[i][l];
     }
     *alpha = alpha_out[l];
+    *taken = dissipated[l];
   }
 };
 
@@ -206,8 +212,8 @@ struct ConstitutiveBatch {
 // Every lane computes only from its own inputs, so a particle's result does not depend on which
 // particles share its batches (and so not on the number of threads).
 //
-// Results come back through store(id, F_E, alpha, tau), in no particular order; call finish()
-// after the last push().
+// Results come back through store(id, F_E, alpha, tau, dissipated), in no particular order; call
+// finish() after the last push(). dissipated: the energy per unit rest volume brittle damage took.
 class ConstitutiveStream {
  public:
   template <class Store>
@@ -251,9 +257,9 @@ class ConstitutiveStream {
 
   template <class Store>
   static void emit(const ConstitutiveBatch& batch, int l, long long id, Store& store) {
-    float F_E[9], alpha, tau[9];
-    batch.get(l, F_E, &alpha, tau);
-    store(id, F_E, alpha, tau);
+    float F_E[9], alpha, tau[9], taken;
+    batch.get(l, F_E, &alpha, tau, &taken);
+    store(id, F_E, alpha, tau, taken);
   }
 
   ConstitutiveBatch fresh_, slow_;

@@ -18,7 +18,7 @@ int64_t constitutive_update_cpu(int64_t n, const float* F_trial, const float* al
 #pragma omp parallel reduction(+ : invalid)
   {
     ConstitutiveStream stream;
-    auto store = [&](long long i, const float F_E[9], float alpha, const float tau[9]) {
+    auto store = [&](long long i, const float F_E[9], float alpha, const float tau[9], float) {
       for (int k = 0; k < 9; ++k) {
         F_out[9 * i + k] = F_E[k];
         tau_out[9 * i + k] = tau[k];

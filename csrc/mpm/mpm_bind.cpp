@@ -414,7 +414,7 @@ std::tuple<int64_t, int64_t, double> g2p(
     const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt,
     const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out, Tensor v_out,
     Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out,
-    std::optional<std::vector<Tensor>> fragments, double split_gradient) {
+    std::optional<std::vector<Tensor>> fragments, double split_gradient, std::optional<Tensor> dissipated_out) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
   check_tensor(x, "x", torch::kFloat32, x);
@@ -467,6 +467,11 @@ std::tuple<int64_t, int64_t, double> g2p(
   G2POutputs out{x_out.data_ptr<float>(), v_out.data_ptr<float>(), C_out.data_ptr<float>(), F_out.data_ptr<float>(),
                  alpha_out.data_ptr<float>(), stress_out.data_ptr<float>(),
                  reinterpret_cast<uint8_t*>(fractured_out.data_ptr<bool>())};
+  if (dissipated_out) {
+    check_tensor(*dissipated_out, "dissipated_out", torch::kFloat32, x);
+    TORCH_CHECK(dissipated_out->numel() == n, "g2p: dissipated_out must have one value per particle");
+    out.dissipated = dissipated_out->data_ptr<float>();
+  }
   if (x.device().is_cpu()) {
     const G2PStats s = g2p_cpu(n, in, geo, (float)dt, grid_velocity.data_ptr<float>(), out, frag_ptr);
     return {s.clamped, s.first_nonfinite, (double)s.max_speed};

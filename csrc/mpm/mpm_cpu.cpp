@@ -519,8 +519,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
   {
     // Gather each particle, hand F_trial to the thread's constitutive stream, store what it returns.
     ConstitutiveStream stream;
-    auto store = [&](long long q, const float F_E[9], float alpha, const float tau[9]) {
-      g2p_store_material(q, in, out, F_E, alpha, tau);
+    auto store = [&](long long q, const float F_E[9], float alpha, const float tau[9], float dissipated) {
+      g2p_store_material(q, in, out, F_E, alpha, tau, dissipated);
       if (!finite_sum9(F_E)) first_bad = q < first_bad ? q : first_bad;
     };
     // Dynamic chunks: the constitutive cost varies between particles (eigen-path lanes); a

@@ -146,9 +146,10 @@ def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields,
 def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,
         material_id: torch.Tensor, material_table: torch.Tensor, grid: GridFields, geometry: GridGeometry,
         dt: float, backend: str = "auto", fragments: FragmentFields | None = None,
-        strength: torch.Tensor | None = None):
+        strength: torch.Tensor | None = None, dissipated: torch.Tensor | None = None):
     """Grid-to-particle transfer, advection and return map (``strength``: per-particle tensile strength
-    of brittle particles, None: the material table's).
+    of brittle particles, None: the material table's; ``dissipated``: an (N,) float32 tensor that
+    receives the energy per unit rest volume each particle's brittle damage took, 0 elsewhere).
 
     ``geometry`` names the object grids (K); with ``fragments`` the grid holds 2K fields and each
     split node is read from the field of the particle's side. Returns (x, v, C, F_E, alpha, stress,
@@ -165,7 +166,7 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
         clamped, first_bad, max_speed = compiled_module().mpm_g2p(
             x, F_E, alpha, fractured, grid_id, material_id, material_table, strength, velocity, *geometry.args(), dt,
             clamp_lower, clamp_upper, *out, fragments.as_list() if fragments is not None else None,
-            fragments.split_gradient if fragments is not None else 1.0)
+            fragments.split_gradient if fragments is not None else 1.0, dissipated)
         return (*out, G2PStats(int(clamped), int(first_bad), float(max_speed)))
     return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity,
-                         geometry, dt, clamp_lower, clamp_upper, fragments, strength)
+                         geometry, dt, clamp_lower, clamp_upper, fragments, strength, dissipated)

@@ -10,7 +10,7 @@ import torch
 
 from fracture_gs.mpm.grid import (FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins, node_coords,
                                   node_index)
-from fracture_gs.materials import COLUMN, constitutive_update_reference
+from fracture_gs.materials import COLUMN, BrittleMaterial, constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
 # The 27 stencil offsets, in the order the kernels visit them (a, b, c nested).
@@ -323,7 +323,7 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
         grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor,
         grid_velocity: torch.Tensor, geometry: GridGeometry, dt: float,
         clamp_lower: list[float], clamp_upper: list[float], fragments: FragmentFields | None = None,
-        strength: torch.Tensor | None = None):
+        strength: torch.Tensor | None = None, dissipated: torch.Tensor | None = None):
     """Gather velocity and APIC affine field, advect, update F and run the return map. With
     ``fragments``, each split node's velocity comes from the field of the particle's side there.
 
@@ -348,6 +348,16 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
     eye = torch.eye(3, device=x.device, dtype=x.dtype)
     F_trial = (eye + dt * C) @ F_E
     F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha, strength)
+    if dissipated is not None:   # (g(d_old) − g(d_new)) ψ⁺ of the brittle particles, 0 elsewhere
+        rows = material_table[material_id.long()].to(F_trial.dtype)
+        brittle = rows[:, COLUMN["model"]] == BrittleMaterial.model_code
+        taken = torch.zeros(len(x), dtype=F_trial.dtype, device=x.device)
+        if bool(brittle.any()):
+            residual = rows[brittle, COLUMN["residual"]]
+            old, new = alpha[brittle].to(F_trial.dtype), alpha_new[brittle]
+            drop = ((1.0 - old) ** 2 - (1.0 - new) ** 2) * (1.0 - residual)
+            taken[brittle] = drop * BrittleMaterial.tensile_energy_rows(F_new[brittle], rows[brittle])
+        dissipated.copy_(taken)
     threshold = material_table[material_id.long(), COLUMN["fracture_threshold"]]
     fractured_new = fractured | (alpha_new >= threshold)
     finite = (torch.isfinite(x_new).all(1) & torch.isfinite(v).all(1) & torch.isfinite(F_new).flatten(1).all(1))

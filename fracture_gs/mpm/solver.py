@@ -20,7 +20,6 @@ from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
 from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.materials import COLUMN, MaterialTable, elastic_energy, particle_strengths
-from fracture_gs.materials.brittle import BrittleMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
@@ -200,15 +199,16 @@ class CollisionMPM:
         self.external_impulse.step(field_bins.touched, g, dt, lambda: ops.boundaries(
             field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps, g,
             backend))
+        dissipated = torch.empty_like(s.alpha) if self.has_brittle else None
         x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
             s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend,
-            fragments=fragments, strength=self.strength)
+            fragments=fragments, strength=self.strength, dissipated=dissipated)
         if fragments is not None:  # fields B are zero again for the next substep
             ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
         self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
         if self.has_brittle:
-            self._brittle_substep(s.alpha, alpha, F_E, C, dt)
+            self._brittle_substep(s.alpha, alpha, F_E, C, dissipated, dt)
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -238,14 +238,13 @@ class CollisionMPM:
                                           self.split_gradient, side_mask.contiguous())
 
     def _brittle_substep(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor,
-                         C: torch.Tensor, dt: float) -> None:
-        """What a substep did to the brittle particles: the energy their damage took,
-        Σ (g(d_old) − g(d_new)) ψ⁺(F_E) V_p over those whose damage grew (the elastic energy
-        g ψ⁺ + ψ⁻ loses exactly that), added to ``fracture_energy`` per object; and their crack
-        planes. A new crack's normal is the direction of the particle's largest principal stretch (of
-        its largest principal stress, Rankine) when its damage becomes complete; afterwards the normal
-        is carried with the material like the normal of a material plane, n ← (I − dt Cᵀ) n,
-        normalised."""
+                         C: torch.Tensor, dissipated: torch.Tensor, dt: float) -> None:
+        """What a substep did to the brittle particles: the energy their damage took (``dissipated``,
+        per unit rest volume, from G2P: (g(d_old) − g(d_new)) ψ⁺(F_E); the elastic energy g ψ⁺ + ψ⁻
+        loses exactly that), added to ``fracture_energy`` per object; and their crack planes. A new
+        crack's normal is the direction of the particle's largest principal stretch (of its largest
+        principal stress, Rankine) when its damage becomes complete; afterwards the normal is carried
+        with the material like the normal of a material plane, n ← (I − dt Cᵀ) n, normalised."""
         assert self.crack_normal is not None
         if self._cracked is None:   # rows with a crack normal, in the current particle order
             self._cracked = torch.nonzero((self.crack_normal != 0).any(1)).flatten()
@@ -257,14 +256,9 @@ class CollisionMPM:
         if len(grew) == 0:
             return
         p = self.particles
-        rows = self.material_table[p.material_id[grew].long()].double()
-        residual = rows[:, COLUMN["residual"]]
-        old, new = damage_old[grew].double(), damage_new[grew].double()
-        degradation_drop = ((1.0 - old) ** 2 - (1.0 - new) ** 2) * (1.0 - residual)
-        tensile = BrittleMaterial.tensile_energy_rows(F_E[grew].double(), rows)
-        energy = degradation_drop * tensile * p.rest_volume[grew].double()
+        energy = dissipated[grew].double() * p.rest_volume[grew].double()
         self.fracture_energy.index_add_(0, p.obj_id[grew].long(), energy)
-        cracked_now = grew[new >= 1.0]   # grew to 1 in this substep (it was below 1 before)
+        cracked_now = grew[damage_new[grew] >= 1.0]   # grew to 1 in this substep (it was below 1 before)
         if len(cracked_now):
             F = F_E[cracked_now].double()
             _, vectors = torch.linalg.eigh(F @ F.mT)
