@@ -201,6 +201,22 @@ def test_particles_rest_volume_sums_to_mesh_volume_and_nv0_gives_surface_only() 
     assert surface_only.volume.sum() == pytest.approx(mesh.volume, rel=1e-9)
 
 
+def test_a_shell_keeps_interior_particles_in_its_wall_and_the_walls_volume() -> None:
+    grid = VoxelGrid.around(np.full(3, -1.0), np.full(3, 1.0), 48)
+    sdf = grid.node_positions().norm(dim=-1) - 0.7
+    mesh = extract_mesh(sdf, grid)
+    wall = 0.2
+    hollow = sample_particles(mesh, sdf, grid, n_surface=1500, nv=4, particle_resolution=24,
+                              rng=np.random.default_rng(2), shell=wall)
+    radius = np.linalg.norm(hollow.position[~hollow.is_surface], axis=1)
+    assert hollow.num_interior > 0 and radius.min() > 0.7 - wall - 1e-3 and radius.max() < 0.7 + 1e-3
+    shell_volume = 4.0 / 3.0 * np.pi * (0.7 ** 3 - (0.7 - wall) ** 3)
+    assert hollow.volume.sum() == pytest.approx(shell_volume, rel=0.05)
+    solid = sample_particles(mesh, sdf, grid, n_surface=1500, nv=4, particle_resolution=24,
+                             rng=np.random.default_rng(2))
+    assert hollow.num_interior < 0.8 * solid.num_interior
+
+
 def test_distribute_volume_gives_empty_voxels_to_the_nearest_particle() -> None:
     lattice = VoxelGrid((0.0, 0.0, 0.0), 1.0, (3, 1, 1))
     position = np.array([[0.1, 0.0, 0.0], [0.2, 0.0, 0.0]])

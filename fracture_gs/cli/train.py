@@ -55,6 +55,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-interior", type=int, default=None,
                         help="choose the interior voxel size for about this many interior "
                              "particles (overrides --particle-res; paper preset 100000)")
+    parser.add_argument("--shell", type=float, default=0.0,
+                        help="sample a hollow body: interior particles only within this wall "
+                             "thickness of the surface, as a share of the longest side (a teapot, a "
+                             "vase: 0.06; default 0 = solid)")
     parser.add_argument("--parts", default=None,
                         help="part spec JSON (default: the dataset's parts.json, else one part)")
     parser.add_argument("--sh-degree", type=int, default=3, help="SH degree 0..3 (default 3)")
@@ -107,7 +111,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
             model_path = os.path.join("output", os.path.basename(os.path.normpath(source)))
     return TrainConfig(source_path=source, model_path=model_path,
                        white_background=args.white_background, parts=args.parts,
-                       sh_degree=args.sh_degree, device=args.device, seed=args.seed,
+                       sh_degree=args.sh_degree, shell=args.shell, device=args.device, seed=args.seed,
                        preset=args.preset, min_component=args.min_component,
                        max_offset=args.max_offset, from_ply=args.from_ply,
                        from_sdf=args.from_sdf,

@@ -13,7 +13,8 @@ A material class is the one home of its model: its YAML keys and their validatio
 (``from_yaml`` / ``to_yaml``), its row of the kernels' material table (``pack``), its torch twin
 (``update_rows``, ``energy_rows``) and its thresholds. The compiled kernels are
 ``csrc/common/constitutive.h`` and ``csrc/common/hencky_eig.h``; :mod:`fracture_gs.materials.table`
-builds the table and dispatches the twins.
+builds the table and dispatches the twins. :mod:`fracture_gs.materials.presets` reads the named
+presets of ``configs/materials/`` (``preset: porcelain``).
 """
 from fracture_gs.materials.brittle import BrittleMaterial, particle_strengths
 from fracture_gs.materials.elastic import ElasticMaterial

@@ -18,6 +18,7 @@ from fracture_gs import _backend, keys
 from fracture_gs.materials.brittle import MODEL_BRITTLE, BrittleMaterial
 from fracture_gs.materials.elastic import MODEL_ELASTIC, ElasticMaterial
 from fracture_gs.materials.nacc import MODEL_NACC, NACCMaterial
+from fracture_gs.materials import presets
 
 Material = Union[ElasticMaterial, NACCMaterial, BrittleMaterial]
 # The models by YAML name, in the order of their codes.
@@ -36,7 +37,7 @@ __all__ = ["COLUMN", "MATERIAL_CLASSES", "MODEL_BRITTLE", "MODEL_ELASTIC", "MODE
 
 def material_from_yaml(data: Any, path: str) -> Material:
     """The material of one scene material mapping (its ``model`` picks the class; key-path errors)."""
-    data = keys.mapping(data, path)
+    data = presets.expand(keys.mapping(data, path), path)
     model = keys.choice(data, "model", path, tuple(MATERIAL_CLASSES))
     own = set(MATERIAL_CLASSES[model].yaml_keys)
     for key in data:

@@ -124,9 +124,16 @@ def particle_lattice(mesh: trimesh.Trimesh, resolution: int) -> VoxelGrid:
                      tuple(n + 2 for n in grid.shape))
 
 
+def _inside(values: torch.Tensor | np.ndarray, shell: float):
+    """Inside the solid: SDF < 0, and deeper than ``-shell`` when ``shell`` > 0 (a hollow body
+    whose wall is ``shell`` thick)."""
+    inside = values < 0
+    return inside & (values > -shell) if shell > 0 else inside
+
+
 def _inside_fraction(sdf: torch.Tensor, sdf_grid: VoxelGrid, centres: np.ndarray,
-                     voxel: float) -> np.ndarray:
-    """Fraction of each voxel (given by its centre) where the SDF is negative."""
+                     voxel: float, shell: float = 0.0) -> np.ndarray:
+    """Fraction of each voxel (given by its centre) inside the solid (:func:`_inside`)."""
     offsets = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES - 0.5
     sub = np.stack(np.meshgrid(offsets, offsets, offsets, indexing="ij"), -1).reshape(-1, 3)
     fractions = np.empty(len(centres))
@@ -134,34 +141,39 @@ def _inside_fraction(sdf: torch.Tensor, sdf_grid: VoxelGrid, centres: np.ndarray
     for start in range(0, len(centres), chunk):
         points = (centres[start:start + chunk, None, :] + voxel * sub[None]).reshape(-1, 3)
         values = sample_dense(sdf, sdf_grid, torch.from_numpy(points).float().to(sdf.device))
-        fractions[start:start + chunk] = (values.reshape(-1, len(sub)) < 0).float().mean(1).cpu().numpy()
+        fractions[start:start + chunk] = _inside(values.reshape(-1, len(sub)), shell).float().mean(1).cpu().numpy()
     return fractions
 
 
 def sample_particles(mesh: trimesh.Trimesh, sdf: torch.Tensor, sdf_grid: VoxelGrid,
                      n_surface: int, nv: int, particle_resolution: int,
-                     rng: np.random.Generator) -> ParticleSet:
-    """Surface + interior particles with rest volumes summing to the mesh volume."""
+                     rng: np.random.Generator, shell: float = 0.0) -> ParticleSet:
+    """Surface + interior particles with rest volumes summing to the solid's volume: the mesh's,
+    or with ``shell`` > 0 (model units) a hollow body's whose wall is ``shell`` thick (interior
+    particles only where -shell < SDF < 0)."""
     surface, normals, spacing = sample_surface_even(mesh, n_surface, rng)
     lattice = particle_lattice(mesh, particle_resolution)
     centres = lattice.node_positions().reshape(-1, 3).double().numpy()
     centre_sdf = sample_dense(sdf, sdf_grid, torch.from_numpy(centres).float().to(sdf.device))
     centre_sdf = centre_sdf.cpu().numpy().astype(np.float64)
     half_diagonal = 0.5 * np.sqrt(3.0) * lattice.voxel
-    occupied = (centre_sdf < 0).astype(np.float64)
+    occupied = _inside(centre_sdf, shell).astype(np.float64)
     boundary = np.abs(centre_sdf) < half_diagonal + sdf_grid.voxel
-    occupied[boundary] = _inside_fraction(sdf, sdf_grid, centres[boundary], lattice.voxel)
-    interior_voxels = np.nonzero(centre_sdf < 0)[0]
+    if shell > 0:
+        boundary |= np.abs(centre_sdf + shell) < half_diagonal + sdf_grid.voxel
+    occupied[boundary] = _inside_fraction(sdf, sdf_grid, centres[boundary], lattice.voxel, shell)
+    interior_voxels = np.nonzero(_inside(centre_sdf, shell))[0]
     if nv > 0 and len(interior_voxels):
         jitter = rng.random((len(interior_voxels), nv, 3)) - 0.5
         interior = (centres[interior_voxels, None, :] + lattice.voxel * jitter).reshape(-1, 3)
         values = sample_dense(sdf, sdf_grid, torch.from_numpy(interior).float().to(sdf.device))
-        interior = interior[values.cpu().numpy() < 0]
+        interior = interior[_inside(values.cpu().numpy(), shell)]
     else:
         interior = np.zeros((0, 3))
     position = np.concatenate([surface, interior])
     volume = distribute_volume(position, lattice, occupied * lattice.voxel ** 3)
-    volume *= mesh.volume / volume.sum()
+    solid_volume = mesh.volume if shell <= 0 else float(occupied.sum()) * lattice.voxel ** 3
+    volume *= solid_volume / volume.sum()
     is_surface = np.zeros(len(position), dtype=bool)
     is_surface[:len(surface)] = True
     all_normals = np.concatenate([normals, np.zeros_like(interior)])

@@ -73,6 +73,7 @@ class TrainConfig:
     nv: int = 8
     particle_res: int | None = 48
     n_interior: int | None = None
+    shell: float = 0.0               # wall thickness of a hollow body / longest side (0: solid)
     parts: str | None = None
     sh_degree: int = 3
     device: str = "cpu"
@@ -184,6 +185,7 @@ def check_config(config: TrainConfig) -> None:
                "must be >= 2"),
               ("--n-interior", config.n_interior is None or config.n_interior >= 1,
                "must be >= 1"),
+              ("--shell", 0.0 <= config.shell < 0.5, "must be in [0, 0.5)"),
               ("--sh-degree", 0 <= config.sh_degree <= 3, "must be 0..3"),
               ("--max-offset", config.max_offset >= 0, "must be >= 0"),
               ("--min-component", 0 <= config.min_component <= 1, "must be in [0, 1]"),
@@ -370,7 +372,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
         summary["mesh_volume"] = float(mesh.volume)
         with timer.stage("particles"):
             particles = sample_particles(mesh, sdf.to(device), grid, config.n_surface, config.nv,
-                                         _interior_resolution(config, mesh), rng)
+                                         _interior_resolution(config, mesh), rng,
+                                         shell=config.shell * float(np.max(mesh.extents)))
             part_id = assign_part_ids(particles.position, inputs.parts)
         check_parts(part_id, inputs.parts, inputs.parts_source, mesh)
     else:
@@ -491,7 +494,7 @@ def _write_particles(folder: model_io.OutputFolder, particles: ParticleSet, part
         "surface_spacing": particles.surface_spacing,
         "interior_voxel": particles.interior_voxel,
         "interior_particle_size": particles.interior_voxel / max(config.nv, 1) ** (1.0 / 3.0),
-        "nv": config.nv, "n_surface": particles.num_surface,
+        "nv": config.nv, "shell": config.shell, "n_surface": particles.num_surface,
         "n_interior": particles.num_interior,
         "total_volume": float(particles.volume.sum()),
         "note": "surface_spacing: Poisson-disk radius of the surface particles; "
