@@ -32,7 +32,7 @@ from fracture_gs.mpm.output import write_text_atomic
 from fracture_gs.render.frame_gaussians import FrameGaussians, ModelError, SceneGaussians
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png
 from fracture_gs.render.views import (View, ViewSpecError, bounds_sphere, cameras_from_json,
-                                      dataset_views, orbit_views)
+                                      check_image_size, dataset_views, orbit_views)
 from fracture_gs.sim.folder import Simulation, SimulationError
 
 DEFAULT_ORBIT_SIZE = (800, 800)
@@ -153,9 +153,11 @@ def resolve_device(name: str | None) -> torch.device:
 
 def options_from_args(args: argparse.Namespace) -> RenderOptions:
     """Checked :class:`RenderOptions` (InvalidInput naming the option)."""
-    if args.resolution is not None and min(args.resolution) < 1:
-        raise InvalidInput(f"--resolution {args.resolution[0]} {args.resolution[1]}: sizes must "
-                           "be >= 1")
+    if args.resolution is not None:
+        try:
+            check_image_size(*args.resolution, "--resolution")
+        except ViewSpecError as exc:
+            raise InvalidInput(str(exc)) from None
     if not args.fps > 0:
         raise InvalidInput(f"--fps {args.fps}: must be > 0")
     try:
