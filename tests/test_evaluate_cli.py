@@ -105,6 +105,7 @@ def test_missing_weights_are_reported_not_replaced(sim: Path, tmp_path: Path) ->
 @pytest.mark.parametrize("argv, needle", [
     (["--sim", "/nonexistent/sim"], "/nonexistent/sim"),
     (["--sim", "SIM", "--window", "0"], "--window"),
+    (["--sim", "SIM", "--resolution", "100000", "100000"], "--resolution: image size 100000x100000"),
     (["--sim", "SIM", "--renders", "/nonexistent/r"], "/nonexistent/r"),
     (["--sim", "SIM", "--mls", "SIM"], "--mls"),
     (["-m", "/nonexistent/model"], "/nonexistent/model"),
@@ -201,11 +202,19 @@ def test_renders_are_labelled_from_their_render_json(sim: Path, tmp_path: Path,
                              str(tmp_path / "e3")], capsys)
     assert err == (f"error: {renders}: renders of the simulation {sim.resolve()} (scene "
                    f"'tiny_collision'), not of {other}")
+    stale = tmp_path / "stale"
+    render_simulation(RenderOptions(sim=other, views="orbit:1", resolution=(32, 32), out=stale),
+                      log=open("/dev/null", "w"), progress=False)
+    (other / "scene.yaml").write_text((other / "scene.yaml").read_text() + "# edited\n")
+    err = _evaluate_failing(["--sim", str(other), "--renders", str(stale), "--out",
+                             str(tmp_path / "e5")], capsys)
+    assert err == (f"error: {stale}: renders of an earlier state of {other} (its scene.yaml or "
+                   "particles.npz changed since); render the simulation again")
     (renders / "render.json").unlink()
     err = _evaluate_failing(["--sim", str(sim), "--renders", str(renders), "--out",
                              str(tmp_path / "e4")], capsys)
     assert str(renders / "render.json") in err and "file not found" in err
-    assert not any((tmp_path / name).exists() for name in ("e2", "e3", "e4"))
+    assert not any((tmp_path / name).exists() for name in ("e2", "e3", "e4", "e5"))
 
 
 def test_compare_refuses_runs_of_another_contact_mode(sim: Path, tmp_path: Path,

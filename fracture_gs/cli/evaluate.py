@@ -26,6 +26,7 @@ from fracture_gs.experiments.sim_eval import (DEFAULT_RESOLUTION, EvalOptions, E
                                               RunSpec, check_run, run_of_renders)
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
 from fracture_gs.render.model_folder import latest_point_cloud
+from fracture_gs.render.views import ViewSpecError, check_image_size
 
 EXPERIMENTS = ("ablation", "hardening", "nv-sweep", "momentum", "energy")
 
@@ -103,6 +104,10 @@ def _options(args: argparse.Namespace, device: torch.device) -> EvalOptions:
     if min(args.resolution) < 8:
         raise EvaluationError(f"--resolution {args.resolution[0]} {args.resolution[1]}: sizes "
                               "must be >= 8")
+    try:
+        check_image_size(*args.resolution, "--resolution")
+    except ViewSpecError as exc:
+        raise EvaluationError(str(exc)) from None
     if args.window < 1:
         raise EvaluationError(f"--window {args.window}: must be >= 1")
     from fracture_gs._backend import use_compiled

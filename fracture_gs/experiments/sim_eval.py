@@ -25,7 +25,7 @@ import torch
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
 from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
-from fracture_gs.mpm.output import SCENE_FILE
+from fracture_gs.mpm.output import PARTICLES_FILE, SCENE_FILE
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.render_info import (RENDER_INFO_FILE, RenderInfo, RenderInfoError,
                                             read_render_info)
@@ -127,6 +127,10 @@ def check_run(spec: RunSpec) -> Simulation:
     if spec.renders is not None:
         info = _render_info(spec.renders)
         if info.simulation != sim.fingerprint():
+            if info.sim == str(sim.root.resolve()):
+                raise EvaluationError(f"{spec.renders}: renders of an earlier state of {spec.sim} "
+                                      f"(its {SCENE_FILE} or {PARTICLES_FILE} changed since); "
+                                      "render the simulation again")
             raise EvaluationError(f"{spec.renders}: renders of the simulation {info.sim} (scene "
                                   f"'{info.scene}'), not of {spec.sim}")
         if info.fpgo != spec.fpgo:
