@@ -226,3 +226,38 @@ def test_file_level_errors(tmp_path: Path) -> None:
     top_list.write_text("- 1\n- 2\n")
     with pytest.raises(SceneError, match="expected a mapping"):
         load_scene(top_list)
+
+
+def test_a_key_given_twice_is_refused_with_both_lines(tmp_path: Path) -> None:
+    twice = tmp_path / "twice.yaml"
+    twice.write_text(yaml.safe_dump(base_scene(), sort_keys=False) + "frames: 99\n")
+    first = next(i for i, line in enumerate(twice.read_text().splitlines(), 1)
+                 if line.startswith("frames:"))
+    last = len(twice.read_text().splitlines())
+    with pytest.raises(SceneError) as error:
+        load_scene(twice)
+    assert str(error.value) == (f"{twice}: invalid YAML at line {last}: duplicate key 'frames' "
+                                f"(first given at line {first})")
+    nested = tmp_path / "nested.yaml"
+    nested.write_text("domain: {min: [0, 0, 0], max: [1, 1, 1], grid: 16}\n"
+                      "objects:\n"
+                      "  - name: a\n"
+                      "    primitive: {shape: sphere, radius: 0.1, radius: 0.2}\n")
+    with pytest.raises(SceneError, match=r"line 4: duplicate key 'radius' \(first given at line 4\)"):
+        load_scene(nested)
+
+
+def test_merge_keys_are_not_duplicates(tmp_path: Path) -> None:
+    merged = tmp_path / "merged.yaml"
+    merged.write_text("domain: {min: [0, 0, 0], max: [1, 1, 1], grid: 16}\n"
+                      "objects:\n"
+                      "  - name: a\n"
+                      "    primitive: &p {shape: sphere, radius: 0.1}\n"
+                      "    transform: {translate: [0.5, 0.5, 0.5]}\n"
+                      "    materials: [{part: 0, model: nacc, E: 1.0e4, nu: 0.3, density: 10, Jp0: 0.98}]\n"
+                      "  - name: b\n"
+                      "    primitive: {<<: *p, radius: 0.05}\n"
+                      "    transform: {translate: [0.2, 0.2, 0.2]}\n"
+                      "    materials: [{part: 0, model: nacc, E: 1.0e4, nu: 0.3, density: 10, Jp0: 0.98}]\n")
+    config = load_scene(merged)
+    assert [obj.primitive.radius for obj in config.objects] == [0.1, 0.05]

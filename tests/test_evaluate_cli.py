@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -104,6 +105,7 @@ def test_missing_weights_are_reported_not_replaced(sim: Path, tmp_path: Path) ->
 @pytest.mark.parametrize("argv, needle", [
     (["--sim", "/nonexistent/sim"], "/nonexistent/sim"),
     (["--sim", "SIM", "--window", "0"], "--window"),
+    (["--sim", "SIM", "--resolution", "100000", "100000"], "--resolution: image size 100000x100000"),
     (["--sim", "SIM", "--renders", "/nonexistent/r"], "/nonexistent/r"),
     (["--sim", "SIM", "--mls", "SIM"], "--mls"),
     (["-m", "/nonexistent/model"], "/nonexistent/model"),
@@ -133,9 +135,21 @@ def test_report_folder_is_made_only_after_every_run_is_evaluated(sim: Path, tmp_
     assert (out / "metrics.json").is_file() and (out / "report.md").is_file()
 
 
+def declared_mls_copy(sim: Path, copy: Path) -> Path:
+    """The run's folder again with its scene.yaml saying contact mode mls: the same frames, so
+    that the 'mls' row of a comparison must equal the 'no FPGO' row."""
+    shutil.copytree(sim, copy)
+    scene = copy / "scene.yaml"
+    text = scene.read_text()
+    assert "mode: collision" in text
+    scene.write_text(text.replace("mode: collision", "mode: mls"))
+    return copy
+
+
 def test_compare_gives_the_ablation_rows(sim: Path, tmp_path: Path) -> None:
     out = tmp_path / "eval"
-    assert evaluate_main(["--sim", str(sim), "--compare", "--mls", str(sim), "--out", str(out),
+    mls = declared_mls_copy(sim, tmp_path / "mls")
+    assert evaluate_main(["--sim", str(sim), "--compare", "--mls", str(mls), "--out", str(out),
                           "--no-fid", "--no-lpips", "--views", "orbit:2", "--resolution", "32",
                           "32", "--quiet"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
@@ -152,6 +166,69 @@ def test_compare_gives_the_ablation_rows(sim: Path, tmp_path: Path) -> None:
     assert low <= to_nofpgo["psnr"]["advantage"] <= high and to_nofpgo["psnr"]["views"] == 2
     assert "lpips" not in to_nofpgo and "fid" not in to_nofpgo     # --no-lpips --no-fid
     assert "## Paired comparison" in report
+
+
+def _evaluate_failing(argv: list[str], capsys: pytest.CaptureFixture) -> str:
+    assert evaluate_main([*argv, "--no-fid", "--no-lpips", "--quiet"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), lines
+    return lines[0]
+
+
+def test_renders_are_labelled_from_their_render_json(sim: Path, tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture) -> None:
+    """A render.py folder made without FPGO is scored as 'no FPGO' whatever its name; asking
+    for the other kind, or scoring it against another simulation, is one line and exit 2."""
+    renders = tmp_path / "renders_nofpgo"
+    render_simulation(RenderOptions(sim=sim, views="orbit:2", resolution=(32, 32), fpgo=False,
+                                    out=renders), log=open("/dev/null", "w"), progress=False)
+    info = json.loads((renders / "render.json").read_text())
+    assert info["fpgo"] is False and info["contact_mode"] == "collision"
+    assert info["sim"] == str(sim.resolve()) and info["scene"] == "tiny_collision"
+    out = tmp_path / "eval"
+    assert evaluate_main(["--sim", str(sim), "--renders", str(renders), "--out", str(out),
+                          "--no-fid", "--no-lpips", "--quiet"]) == 0
+    run, = json.loads((out / "metrics.json").read_text())["runs"]
+    assert run["label"] == "no FPGO" and run["fpgo"] is False
+    capsys.readouterr()
+    fpgo = tmp_path / "renders_fpgo"
+    render_simulation(RenderOptions(sim=sim, views="orbit:1", resolution=(32, 32), out=fpgo),
+                      log=open("/dev/null", "w"), progress=False)
+    err = _evaluate_failing(["--sim", str(sim), "--renders", str(fpgo), "--no-fpgo", "--out",
+                             str(tmp_path / "e2")], capsys)
+    assert str(fpgo) in err and "rendered with FPGO" in err and "'no FPGO'" in err
+    other = declared_mls_copy(sim, tmp_path / "other")
+    err = _evaluate_failing(["--sim", str(other), "--renders", str(renders), "--out",
+                             str(tmp_path / "e3")], capsys)
+    assert err == (f"error: {renders}: renders of the simulation {sim.resolve()} (scene "
+                   f"'tiny_collision'), not of {other}")
+    stale = tmp_path / "stale"
+    render_simulation(RenderOptions(sim=other, views="orbit:1", resolution=(32, 32), out=stale),
+                      log=open("/dev/null", "w"), progress=False)
+    (other / "scene.yaml").write_text((other / "scene.yaml").read_text() + "# edited\n")
+    err = _evaluate_failing(["--sim", str(other), "--renders", str(stale), "--out",
+                             str(tmp_path / "e5")], capsys)
+    assert err == (f"error: {stale}: renders of an earlier state of {other} (its scene.yaml or "
+                   "particles.npz changed since); render the simulation again")
+    (renders / "render.json").unlink()
+    err = _evaluate_failing(["--sim", str(sim), "--renders", str(renders), "--out",
+                             str(tmp_path / "e4")], capsys)
+    assert str(renders / "render.json") in err and "file not found" in err
+    assert not any((tmp_path / name).exists() for name in ("e2", "e3", "e4", "e5"))
+
+
+def test_compare_refuses_runs_of_another_contact_mode(sim: Path, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "eval"
+    err = _evaluate_failing(["--sim", str(sim), "--compare", "--mls", str(sim), "--out", str(out)],
+                            capsys)
+    assert err == (f"error: {sim}: simulated with contact mode 'collision' (its scene.yaml), but "
+                   "the run 'mls, no FPGO (PhysGaussian / GIC)' needs contact mode 'mls'")
+    mls = declared_mls_copy(sim, tmp_path / "mls")
+    err = _evaluate_failing(["--sim", str(mls), "--compare", "--mls", str(mls), "--out", str(out)],
+                            capsys)
+    assert f"{mls}: simulated with contact mode 'mls'" in err and "'collision'" in err
+    assert not out.exists()
 
 
 def test_static_model_metrics_match_the_pngs(tmp_path: Path) -> None:

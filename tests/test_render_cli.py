@@ -148,3 +148,41 @@ def test_bad_inputs_stop_with_one_line(cracked_block: Path, tmp_path: Path, caps
 def test_model_option_goes_to_the_static_model_renderer(tmp_path, capsys):
     missing = tmp_path / "no_model"
     assert run_failing(["-m", str(missing)], capsys) == f"error: {missing}: model folder not found"
+
+
+def _cameras_json(path: Path, **intrinsics: float) -> Path:
+    """A one-camera 3DGS cameras.json looking at the domain centre from -y (OpenCV axes)."""
+    import json
+
+    camera = {"id": 0, "img_name": "front", "width": 32, "height": 24, "position": [0.5, -1.5, 0.5],
+              "rotation": [[1, 0, 0], [0, 0, 1], [0, -1, 0]], "fx": 200.0, "fy": 200.0, **intrinsics}
+    path.write_text(json.dumps([camera]))
+    return path
+
+
+@pytest.mark.parametrize("intrinsics", [{"fx": float("nan")}, {"fy": float("nan")},
+                                        {"fx": float("inf")}, {"fx": 0.0}, {"fy": -30.0}])
+def test_a_camera_with_a_bad_focal_length_is_refused(cracked_block: Path, tmp_path: Path, capsys,
+                                                     intrinsics: dict[str, float]):
+    cameras = _cameras_json(tmp_path / "cameras.json", **intrinsics)
+    err = run_failing(["--sim", str(cracked_block), "--views", str(cameras)], capsys)
+    assert str(cameras) in err and "camera 0" in err and "focal" in err
+    assert not (cracked_block / "renders").exists()
+
+
+def test_the_same_camera_with_a_valid_focal_length_renders(cracked_block: Path, tmp_path: Path):
+    cameras = _cameras_json(tmp_path / "cameras.json")
+    assert cli.main(["--sim", str(cracked_block), "--views", str(cameras), "--frames", "0"]) == 0
+    image = cv2.imread(str(cracked_block / "renders" / "front" / "00000.png"))
+    assert image.shape == (24, 32, 3) and (image < 200).any()   # the block is in the picture
+
+
+@pytest.mark.parametrize("size", [("100000", "100000"), ("64", "9000"), ("0", "64")])
+def test_an_unrenderable_resolution_is_one_line(cracked_block: Path, tmp_path: Path, capsys,
+                                                size: tuple[str, str]):
+    err = run_failing(["--sim", str(cracked_block), "--resolution", *size], capsys)
+    assert err.startswith(f"error: --resolution: image size {size[0]}x{size[1]}")
+    cameras = _cameras_json(tmp_path / "cameras.json", width=int(size[0]), height=int(size[1]))
+    err = run_failing(["--sim", str(cracked_block), "--views", str(cameras)], capsys)
+    assert str(cameras) in err and f"{size[0]}x{size[1]}" in err
+    assert not (cracked_block / "renders").exists()

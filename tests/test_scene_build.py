@@ -11,7 +11,7 @@ import torch
 from plyfile import PlyData, PlyElement
 
 from fracture_gs.config import PrimitiveConfig, SceneError, TransformConfig, parse_scene
-from fracture_gs.mpm.scene import (apply_transform, build_scene, load_particles_ply,
+from fracture_gs.mpm.scene import (apply_transform, build_scene, load_particles_ply, object_particles,
                                    primitive_signed_distance, rotation_matrix_xyz,
                                    sample_primitive)
 
@@ -201,3 +201,36 @@ def test_object_inside_margin_is_accepted() -> None:
          "transform": {"translate": [0.3, 0.3, 0.3]}, "materials": [NACC]}]))
     built = build_scene(config)
     assert len(built.particles) == pytest.approx(0.008 * 16 ** 3 * 8, rel=0.05)
+
+
+def test_overlap_of_model_objects_is_measured_by_their_particles(tmp_path: Path) -> None:
+    """A particles.ply model placed twice: fully on top of itself is reported, side by side with
+    a gap of one spacing is not; a primitive touching a model is not either."""
+    from fracture_gs.mpm.scene import overlap_warnings
+
+    spacing = 0.02
+    axis = np.arange(-0.06, 0.06 + 1e-9, spacing)
+    x = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    ply = tmp_path / "cube.ply"
+    write_particles_ply(ply, x, np.full(len(x), spacing ** 3), np.zeros(len(x), np.int32))
+
+    def model(name: str, centre: list[float]) -> dict[str, Any]:
+        return {"name": name, "model": str(ply), "transform": {"translate": centre},
+                "materials": [{"part": 0, **NACC}]}
+
+    def warnings(objects: list[dict[str, Any]]) -> list[str]:
+        config = parse_scene(scene_with(objects))
+        assert list(build_scene(config).warnings) == overlap_warnings(
+            config, [object_particles(config, i) for i in range(len(objects))])
+        return list(build_scene(config).warnings)
+
+    same, = warnings([model("a", [0.5, 0.5, 0.5]), model("b", [0.5, 0.5, 0.5])])
+    assert same.startswith("objects 'a' and 'b' overlap: 100% of the particles of 'a' lie "
+                           "inside 'b'")
+    half, = warnings([model("a", [0.5, 0.5, 0.5]), model("b", [0.56, 0.5, 0.5])])
+    assert "overlap: 57%" in half                    # 4 of the 7 particle layers
+    assert warnings([model("a", [0.5, 0.5, 0.5]), model("b", [0.5 + 8 * spacing, 0.5, 0.5])]) == []
+    box = {"name": "box", "primitive": {"shape": "box", "size": [0.1, 0.3, 0.3]},
+           "transform": {"translate": [0.5 - 0.07 - 0.05 - 0.001, 0.5, 0.5]},
+           "materials": [{"part": 0, **NACC}]}
+    assert warnings([model("a", [0.5, 0.5, 0.5]), box]) == []

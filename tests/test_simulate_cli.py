@@ -666,3 +666,38 @@ def test_ctrl_c_exits_130_with_one_line(tmp_path: Path) -> None:
     assert stderr.splitlines() == [f"interrupted; the frames written so far in {out} are valid, "
                                    "continue with --resume"]
     assert len(frames_of(out)) >= 2 and not list(out.rglob(".*.tmp"))
+
+
+def test_overlapping_objects_are_simulated_with_a_warning(tmp_path: Path, ballistic: None,
+                                                          capsys: pytest.CaptureFixture[str]
+                                                          ) -> None:
+    """Two equal spheres 0.225 radii apart share 83 % of their volume: a legal but suspicious
+    start, reported on stderr with both names and the share; spheres apart give no warning."""
+    scene = tiny_scene()
+    scene["frames"] = 1
+    code, _, err = run_main(["--scene", str(write_scene(tmp_path / "apart.yaml", scene)),
+                             "--out", str(tmp_path / "apart")], capsys)
+    assert code == 0 and "warning" not in err
+    scene["objects"][1]["transform"]["translate"] = [0.36 + 0.225 * 0.12, 0.5, 0.5]
+    code, _, err = run_main(["--scene", str(write_scene(tmp_path / "overlap.yaml", scene)),
+                             "--out", str(tmp_path / "overlap")], capsys)
+    assert code == 0
+    warning, = [line for line in err.splitlines() if line.startswith("warning: ")]
+    assert "'left'" in warning and "'right'" in warning and "overlap" in warning
+    share = int(warning.split("overlap: ")[1].split("%")[0])
+    assert 78 <= share <= 88, warning
+    assert (tmp_path / "overlap" / "frames" / "frame_00001.npz").is_file()
+
+
+def test_a_duplicate_scene_key_exits_2_with_one_line(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_scene(tmp_path / "twice.yaml", tiny_scene())
+    path.write_text(path.read_text() + "frames: 2\n")
+    lines = path.read_text().splitlines()
+    first = lines.index("frames: 6") + 1
+    code, _, err = run_main(["--scene", str(path), "--out", str(tmp_path / "out")], capsys)
+    assert code == 2
+    assert err.strip().splitlines() == [
+        f"error: {path}: invalid YAML at line {len(lines)}: duplicate key 'frames' (first given "
+        f"at line {first})"]
+    assert not (tmp_path / "out").exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ast
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -212,6 +213,69 @@ def test_from_ply_binds_particles_to_the_nearest_gaussian(tmp_path: Path) -> Non
     assert np.array_equal(particles["gaussian_index"][surface], brute)
     summary = json.loads((model / "timings.json").read_text())
     assert summary["unbound_gaussians"] == 2000 - len(np.unique(brute))
+
+
+def test_from_ply_warns_about_unbound_gaussians_and_records_their_sh_degree(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """3,000 SH-0 Gaussians for 300 surface particles: 2,700 or more are carried by no particle,
+    which the console says with the count and the reason; cfg_args records SH degree 0."""
+    mesh = trimesh.load(str(FIXTURE / "gt_mesh.ply"))
+    points, _ = trimesh.sample.sample_surface(mesh, 3000, seed=5)
+    count = len(points)
+    generator = torch.Generator().manual_seed(5)
+    imported = GaussianModel(torch.from_numpy(np.asarray(points)).float(),
+                             torch.randn(count, 1, 3, generator=generator),
+                             torch.zeros(count, 0, 3), torch.full((count, 1), 3.0),
+                             torch.full((count, 3), math.log(0.01)),
+                             torch.randn(count, 4, generator=generator))
+    assert imported.sh_degree == 0
+    source = tmp_path / "point_cloud.ply"
+    write_ply(str(source), imported)
+    model = tmp_path / "model"
+    assert _run(["-s", FIXTURE, "-m", model, "--from-ply", source, *TINY]) == 0
+    summary = json.loads((model / "timings.json").read_text())
+    unbound = summary["unbound_gaussians"]
+    assert unbound >= count - 300
+    warnings = [line for line in capsys.readouterr().err.splitlines()
+                if line.startswith("warning: ")]
+    assert len(warnings) == 1, warnings
+    assert f"{unbound} of {count} imported Gaussians" in warnings[0]
+    assert "will not be drawn" in warnings[0] and "--n-surface" in warnings[0]
+    options = ast.parse((model / "cfg_args").read_text(), mode="eval").body.keywords
+    assert {k.arg: ast.literal_eval(k.value) for k in options}["sh_degree"] == 0
+    assert read_ply(str(model / "point_cloud" / "iteration_0" / "point_cloud.ply")).sh_degree == 0
+
+
+def test_unbound_warning_reasons() -> None:
+    from fracture_gs.recon.imported import unbound_warning
+
+    assert unbound_warning(np.array([2, 0, 1, 2]), 3) is None        # every Gaussian carried
+    few = unbound_warning(np.array([4, 0]), 5)
+    assert few is not None and few.startswith("--from-ply: 3 of 5 imported Gaussians")
+    assert "only 2 surface particles" in few and "--n-surface" in few
+    shared = unbound_warning(np.array([0, 0, 1, 1, 2, 2]), 4)
+    assert shared is not None and "1 of 4" in shared and "nearest Gaussian of no surface" in shared
+
+
+def test_unusable_from_sdf_and_from_ply_files_give_one_line_and_leave_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "out"
+    empty = tmp_path / "empty.npz"
+    empty.write_bytes(b"")
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, "--from-sdf", empty, *TINY], out,
+                        "--from-sdf", str(empty), "empty")
+    grid = np.zeros((8, 8, 8), np.float32)
+    np.savez(tmp_path / "whole.npz", sdf=grid, hull_sdf=grid, origin=np.zeros(3), voxel=0.1)
+    truncated = tmp_path / "truncated.npz"
+    whole = (tmp_path / "whole.npz").read_bytes()
+    truncated.write_bytes(whole[:len(whole) // 2])
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, "--from-sdf", truncated, *TINY], out,
+                        "--from-sdf", str(truncated), "not an sdf.npz")
+    no_vertices = tmp_path / "no_vertices.ply"
+    columns = np.zeros(0, dtype=[(name, "f4") for name in ply_property_names(3)])
+    plyfile.PlyData([plyfile.PlyElement.describe(columns, "vertex")]).write(str(no_vertices))
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, "--from-ply", no_vertices, *TINY],
+                        out, str(no_vertices), "no Gaussians")
 
 
 def _fixture_copy(tmp_path: Path, name: str = "data") -> Path:

@@ -22,10 +22,11 @@ from pathlib import Path
 import torch
 
 from fracture_gs.cli.output_folder import prepare_output_folder
-from fracture_gs.experiments.sim_eval import DEFAULT_RESOLUTION, EvalOptions, EvaluationError, RunSpec
+from fracture_gs.experiments.sim_eval import (DEFAULT_RESOLUTION, EvalOptions, EvaluationError,
+                                              RunSpec, check_run, run_of_renders)
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
 from fracture_gs.render.model_folder import latest_point_cloud
-from fracture_gs.sim.folder import Simulation
+from fracture_gs.render.views import ViewSpecError, check_image_size
 
 EXPERIMENTS = ("ablation", "hardening", "nv-sweep", "momentum", "energy")
 
@@ -44,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false",
                         help="evaluate the renders without FPGO")
     parser.add_argument("--renders", default=None,
-                        help="read images from this render.py --sim output folder")
+                        help="read images from this render.py --sim output folder (scored "
+                        "with or without FPGO as its render.json says)")
     parser.add_argument("--compare", action="store_true",
                         help="ablation: FPGO, no FPGO, and --mls SIM without FPGO")
     parser.add_argument("--mls", default=None,
@@ -102,6 +104,10 @@ def _options(args: argparse.Namespace, device: torch.device) -> EvalOptions:
     if min(args.resolution) < 8:
         raise EvaluationError(f"--resolution {args.resolution[0]} {args.resolution[1]}: sizes "
                               "must be >= 8")
+    try:
+        check_image_size(*args.resolution, "--resolution")
+    except ViewSpecError as exc:
+        raise EvaluationError(str(exc)) from None
     if args.window < 1:
         raise EvaluationError(f"--window {args.window}: must be >= 1")
     from fracture_gs._backend import use_compiled
@@ -136,14 +142,17 @@ def run_sim(args: argparse.Namespace) -> int:
     if args.compare:
         if renders is not None:
             raise EvaluationError("--renders: not used with --compare (each run is rendered)")
-        specs = [RunSpec("ours (collision + FPGO)", sim, True),
-                 RunSpec("collision, no FPGO", sim, False)]
+        specs = [RunSpec("ours (collision + FPGO)", sim, True, contact="collision"),
+                 RunSpec("collision, no FPGO", sim, False, contact="collision")]
         if args.mls:
-            specs.append(RunSpec("mls, no FPGO (PhysGaussian / GIC)", Path(args.mls), False))
+            specs.append(RunSpec("mls, no FPGO (PhysGaussian / GIC)", Path(args.mls), False,
+                                 contact="mls"))
+    elif renders is not None:  # labelled from the folder's render.json; --no-fpgo must agree
+        specs = [run_of_renders(sim, renders, None if args.fpgo else False)]
     else:
-        specs = [RunSpec("FPGO" if args.fpgo else "no FPGO", sim, args.fpgo, renders)]
-    for spec in specs:  # a missing simulation fails here, before the folder probe and the networks
-        Simulation.open(spec.sim)
+        specs = [RunSpec("FPGO" if args.fpgo else "no FPGO", sim, args.fpgo)]
+    for spec in specs:  # a wrong simulation fails here, before the folder probe and the networks
+        check_run(spec)
     out_dir = prepare_output_folder(Path(args.out) if args.out else sim / "evaluation", "--out",
                                     keep=False)  # checked now, made when the results are written
     networks = _networks(args, device)

@@ -2,7 +2,8 @@
 
 ``render.py --sim output/sims/<name>`` renders every frame from every view into
 ``<sim>/renders/`` (``renders_nofpgo/`` with ``--no-fpgo``): ``<view>/00000.png``,
-``video_<view>.mp4`` (H.264), ``preview.gif`` (one view), ``timing.csv`` and, with
+``video_<view>.mp4`` (H.264), ``preview.gif`` (one view), ``timing.csv``, ``render.json``
+(which simulation, FPGO on or off: :mod:`fracture_gs.render.render_info`) and, with
 ``--export-ply``, ``ply/frame_00000.ply`` (3DGS layout). ``render.py -m <model>`` renders a
 trained model without simulation (handed to ``fracture_gs.cli.render_model``).
 
@@ -30,9 +31,10 @@ from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prep
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.mpm.output import write_text_atomic
 from fracture_gs.render.frame_gaussians import FrameGaussians, ModelError, SceneGaussians
+from fracture_gs.render.render_info import RenderInfo, write_render_info
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png
 from fracture_gs.render.views import (View, ViewSpecError, bounds_sphere, cameras_from_json,
-                                      dataset_views, orbit_views)
+                                      check_image_size, dataset_views, orbit_views)
 from fracture_gs.sim.folder import Simulation, SimulationError
 
 DEFAULT_ORBIT_SIZE = (800, 800)
@@ -153,9 +155,11 @@ def resolve_device(name: str | None) -> torch.device:
 
 def options_from_args(args: argparse.Namespace) -> RenderOptions:
     """Checked :class:`RenderOptions` (InvalidInput naming the option)."""
-    if args.resolution is not None and min(args.resolution) < 1:
-        raise InvalidInput(f"--resolution {args.resolution[0]} {args.resolution[1]}: sizes must "
-                           "be >= 1")
+    if args.resolution is not None:
+        try:
+            check_image_size(*args.resolution, "--resolution")
+        except ViewSpecError as exc:
+            raise InvalidInput(str(exc)) from None
     if not args.fps > 0:
         raise InvalidInput(f"--fps {args.fps}: must be > 0")
     try:
@@ -259,6 +263,7 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
     background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
     for name in names:
         (out_dir / name).mkdir(parents=True, exist_ok=True)
+    write_render_info(out_dir, RenderInfo.of(sim, options.fpgo))
     if options.export_ply:
         (out_dir / "ply").mkdir(parents=True, exist_ok=True)
 

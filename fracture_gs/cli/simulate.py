@@ -272,6 +272,8 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     check_backend(device, backend)
     check_scene_memory(config, device)
     built = build_scene(config, device)
+    for warning in built.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     output = SimulationOutput(out_dir, built.object_names)
     if resume:
         check_resumable(output, config, built)

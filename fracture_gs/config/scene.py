@@ -235,7 +235,24 @@ def _object_dict(obj: ObjectConfig) -> dict[str, Any]:
 
 
 class _SceneLoader(yaml.SafeLoader):
-    """SafeLoader that also reads YAML 1.2 floats such as ``5.0e5`` or ``1e4`` as numbers."""
+    """SafeLoader that also reads YAML 1.2 floats such as ``5.0e5`` or ``1e4`` as numbers and
+    refuses a key given twice in one mapping (PyYAML would keep the last value silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, yaml.Node] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue  # '<<' merges are resolved by the base class
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.setdefault(key, key_node)
+            except TypeError:
+                continue  # an unhashable key: the base class reports it
+            if first is not key_node:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key '{key}' (first given at line "
+                    f"{first.start_mark.line + 1})", key_node.start_mark)
+        return super().construct_mapping(node, deep=deep)
 
 
 _SceneLoader.add_implicit_resolver(

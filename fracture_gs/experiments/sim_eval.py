@@ -25,7 +25,10 @@ import torch
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
 from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
+from fracture_gs.mpm.output import PARTICLES_FILE, SCENE_FILE
 from fracture_gs.render.frame_gaussians import SceneGaussians
+from fracture_gs.render.render_info import (RENDER_INFO_FILE, RenderInfo, RenderInfoError,
+                                            read_render_info)
 from fracture_gs.render.video import to_uint8
 from fracture_gs.render.views import View
 from fracture_gs.sim.folder import Simulation, SimulationError
@@ -43,12 +46,15 @@ class RunSpec:
     """One evaluated variant: a simulation folder rendered with or without FPGO.
 
     ``renders``: a ``render.py --sim`` output folder (``<view>/<frame:05d>.png``) to read the
-    images from instead of rendering them."""
+    images from instead of rendering them; its ``render.json`` must name this simulation and
+    this ``fpgo``. ``contact``: the contact mode the label claims (the simulation's scene must
+    have it), or None for any."""
 
     label: str
     sim: Path
     fpgo: bool = True
     renders: Path | None = None
+    contact: str | None = None
 
 
 @dataclass(frozen=True)
@@ -90,6 +96,48 @@ def open_simulation(path: Path) -> Simulation:
         return Simulation.open(path)
     except SimulationError as exc:
         raise EvaluationError(str(exc)) from None
+
+
+def _render_info(renders: Path) -> RenderInfo:
+    try:
+        return read_render_info(renders)
+    except RenderInfoError as exc:
+        raise EvaluationError(str(exc)) from None
+
+
+def run_of_renders(sim: Path, renders: Path, fpgo: bool | None = None) -> RunSpec:
+    """The run a ``render.py`` output folder holds, labelled from its ``render.json`` ('FPGO' or
+    'no FPGO'); ``fpgo`` (when not None) is what the caller asked for, and a folder rendered
+    otherwise is refused by :func:`check_run`."""
+    info = _render_info(renders)
+    claimed = info.fpgo if fpgo is None else fpgo
+    return RunSpec("FPGO" if claimed else "no FPGO", sim, claimed, renders)
+
+
+def check_run(spec: RunSpec) -> Simulation:
+    """Open the run's simulation and check that it is what ``spec`` says: the contact mode it
+    claims, and renders of this simulation with FPGO as claimed. EvaluationError (one line
+    naming the folder) otherwise."""
+    sim = open_simulation(spec.sim)
+    mode = sim.scene.contact.mode
+    if spec.contact is not None and mode != spec.contact:
+        raise EvaluationError(f"{spec.sim}: simulated with contact mode '{mode}' (its "
+                              f"{SCENE_FILE}), but the run '{spec.label}' needs contact mode "
+                              f"'{spec.contact}'")
+    if spec.renders is not None:
+        info = _render_info(spec.renders)
+        if info.simulation != sim.fingerprint():
+            if info.sim == str(sim.root.resolve()):
+                raise EvaluationError(f"{spec.renders}: renders of an earlier state of {spec.sim} "
+                                      f"(its {SCENE_FILE} or {PARTICLES_FILE} changed since); "
+                                      "render the simulation again")
+            raise EvaluationError(f"{spec.renders}: renders of the simulation {info.sim} (scene "
+                                  f"'{info.scene}'), not of {spec.sim}")
+        if info.fpgo != spec.fpgo:
+            wanted = "with FPGO" if spec.fpgo else "without FPGO"
+            raise EvaluationError(f"{spec.renders}: rendered {info.fpgo_text} (its "
+                                  f"{RENDER_INFO_FILE}), but the run '{spec.label}' is {wanted}")
+    return sim
 
 
 def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
@@ -158,7 +206,7 @@ def read_rendered_frames(folder: Path, view_names: list[str], frames: list[int])
 def evaluate_run(spec: RunSpec, options: EvalOptions, networks: MetricNetworks,
                  progress: bool = False) -> RunResult:
     """Onset, window and self-referenced PSNR / LPIPS / FID of one run (module docstring)."""
-    sim = open_simulation(spec.sim)
+    sim = check_run(spec)
     try:
         window = fracture_window_from_simulation(spec.sim, options.window)
     except (FileNotFoundError, ValueError) as exc:

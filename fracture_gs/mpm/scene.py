@@ -28,6 +28,10 @@ from fracture_gs.mpm.types import (BoxBoundary, Boundary, ContactSettings, Domai
                                    GroundBoundary, ParticleSet)
 
 WALL_CELLS = 3  # thickness of the box walls; objects must start inside this margin
+# Share of an object's particles lying inside another object above which the scene is reported
+# as suspicious: objects are meant to start apart or touching, and overlapping material is
+# pushed apart violently in the first substeps.
+OVERLAP_WARNING_SHARE = 0.10
 
 
 @dataclass
@@ -55,6 +59,7 @@ class BuiltScene:
     gravity: tuple[float, float, float]
     cfl: float
     seed: int = 0                         # the scene's seed (brittle strengths hash it with the row)
+    warnings: tuple[str, ...] = ()        # legal but suspicious set-ups (overlapping objects)
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -244,6 +249,48 @@ def check_inside_domain(config: SceneConfig, index: int, x: np.ndarray) -> None:
                              f"ground at height {boundary.height:g}")
 
 
+def inside_object(config: SceneConfig, index: int, particles: ObjectParticles,
+                  x: np.ndarray) -> np.ndarray:
+    """(n,) bool: which world points ``x`` lie inside ``config.objects[index]``, whose world-frame
+    particles are ``particles``. Exact for a primitive (its signed distance); for a model object
+    a point is inside when a particle of the object lies within one particle spacing of it."""
+    obj = config.objects[index]
+    if obj.primitive is not None:
+        rotation = rotation_matrix_xyz(obj.transform.rotate_deg)
+        local = (x - np.asarray(obj.transform.translate)) @ rotation  # R^T (x - t)
+        return primitive_signed_distance(obj.primitive, local, obj.transform.scale) <= 0.0
+    from scipy.spatial import cKDTree
+
+    spacing = float(np.median(particles.rest_volume)) ** (1.0 / 3.0)
+    distance, _ = cKDTree(particles.x).query(x, distance_upper_bound=spacing)
+    return np.isfinite(distance)
+
+
+def overlap_warnings(config: SceneConfig, objects: list[ObjectParticles]) -> list[str]:
+    """One line per pair of objects of which one has more than ``OVERLAP_WARNING_SHARE`` of its
+    particles inside the other (``objects``: the world-frame particles of every object)."""
+    lines = []
+    bounds = [(parts.x.min(axis=0), parts.x.max(axis=0)) for parts in objects]
+    for i in range(len(objects)):
+        for j in range(i + 1, len(objects)):
+            shares = []
+            for inner, outer in ((i, j), (j, i)):
+                lower, upper = bounds[outer]
+                x = objects[inner].x
+                near = np.all((x >= lower - config.domain.dx) & (x <= upper + config.domain.dx),
+                              axis=1)
+                inside = inside_object(config, outer, objects[outer], x[near]).sum() if \
+                    near.any() else 0
+                shares.append((int(inside) / len(x), inner, outer))
+            share, inner, outer = max(shares, key=lambda entry: entry[0])
+            if share > OVERLAP_WARNING_SHARE:
+                a, b = config.objects[inner].name, config.objects[outer].name
+                lines.append(f"objects '{a}' and '{b}' overlap: {100 * share:.0f}% of the particles "
+                             f"of '{a}' lie inside '{b}' (objects should start apart or touching; "
+                             "overlapping material is pushed apart violently)")
+    return lines
+
+
 def _material_rows(config: SceneConfig, index: int, parts: np.ndarray
                    ) -> dict[int, MaterialConfig]:
     obj = config.objects[index]
@@ -285,8 +332,8 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
         "gaussian_index")}
     materials: list[Any] = []
     keys: list[tuple[int, int]] = []
-    for index, obj in enumerate(config.objects):
-        parts = object_particles(config, index)
+    objects = [object_particles(config, index) for index in range(len(config.objects))]
+    for index, (obj, parts) in enumerate(zip(config.objects, objects)):
         check_inside_domain(config, index, parts.x)
         by_part = _material_rows(config, index, parts.part_id)
         n = parts.x.shape[0]
@@ -327,4 +374,5 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                                               friction=config.contact.friction,
                                               fragments=config.contact.fragments),
                       boundaries=solver_boundaries(config), gravity=config.gravity,
-                      cfl=config.cfl, seed=config.seed)
+                      cfl=config.cfl, seed=config.seed,
+                      warnings=tuple(overlap_warnings(config, objects)))

@@ -6,7 +6,8 @@
   the region ``D > 0.5`` closed morphologically and with its enclosed cavities filled (a 3DGS
   object is a shell of Gaussians), and a signed distance to that solid (Euclidean distance transforms, lightly
   smoothed so that marching cubes sees no voxel steps).
-* Every surface particle is bound to its nearest Gaussian (``gaussian_index``).
+* Every surface particle is bound to its nearest Gaussian (``gaussian_index``); Gaussians that
+  no particle is bound to are not drawn in simulations (:func:`unbound_warning` says so).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import torch
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from fracture_gs.gaussians import GaussianModel
+from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply
 from fracture_gs.recon.errors import ReconstructionError
 from fracture_gs.recon.grid import VoxelGrid, sample_dense
 
@@ -92,10 +93,42 @@ def opacity_field_sdf(model: GaussianModel, lower: np.ndarray, upper: np.ndarray
     return grid, signed
 
 
+def read_imported(path: str) -> GaussianModel:
+    """The Gaussians of the ``--from-ply`` file ``path``; PlyFormatError naming the file when it
+    cannot be read or holds no Gaussian (a model with nothing to bind the particles to)."""
+    model = read_ply(path)
+    if model.num_gaussians == 0:
+        raise PlyFormatError(f"{path}: the PLY holds no Gaussians (0 vertices); give the "
+                             "point_cloud.ply of a trained 3DGS model")
+    return model
+
+
 def bind_to_nearest(particles: np.ndarray, gaussian_means: np.ndarray) -> np.ndarray:
     """Index (int64) of the nearest Gaussian of every particle."""
     _, nearest = cKDTree(gaussian_means).query(particles)
     return nearest.astype(np.int64)
+
+
+def unbound_warning(gaussian_index: np.ndarray, num_gaussians: int) -> str | None:
+    """The warning for imported Gaussians that no surface particle carries, or None.
+
+    ``gaussian_index`` holds the Gaussian of every surface particle (:func:`bind_to_nearest`).
+    A simulation moves and draws only the Gaussians that particles carry, so the others vanish
+    from every rendered frame; the message gives their count and why they were left over."""
+    bound = int(np.unique(gaussian_index).size)
+    unbound = num_gaussians - bound
+    if unbound <= 0:
+        return None
+    particles = int(gaussian_index.size)
+    if particles < num_gaussians:
+        reason = (f"there are only {particles} surface particles for {num_gaussians} Gaussians "
+                  f"and each particle carries its nearest Gaussian; raise --n-surface to about "
+                  f"{num_gaussians} to carry more of them")
+    else:
+        reason = ("they are the nearest Gaussian of no surface particle (Gaussians away from "
+                  "the reconstructed surface, inside the object or floating around it)")
+    return (f"--from-ply: {unbound} of {num_gaussians} imported Gaussians are bound to no particle "
+            f"and will not be drawn in simulations: {reason}")
 
 
 def iteration_of(path: str) -> int:

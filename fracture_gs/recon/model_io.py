@@ -27,6 +27,7 @@ import os
 import re
 import shutil
 import tempfile
+import zipfile
 from argparse import Namespace
 from typing import Any, Iterator
 
@@ -237,11 +238,15 @@ def read_sdf(path: str) -> tuple[np.ndarray, np.ndarray, tuple[float, float, flo
     """``sdf``, ``hull_sdf``, grid origin and voxel edge of an ``sdf.npz`` written by
     :func:`write_sdf`; a ``ValueError`` naming what is wrong otherwise."""
     try:
-        with np.load(path) as content:
+        with np.load(path, allow_pickle=False) as content:
             sdf, hull_sdf = content["sdf"], content["hull_sdf"]
             origin, voxel = content["origin"], float(content["voxel"])
-    except (OSError, KeyError, ValueError) as error:
-        raise ValueError(f"not an sdf.npz of train.py ({type(error).__name__}: {error})") from None
+    except EOFError:
+        raise ValueError("not an sdf.npz of train.py (the file is empty)") from None
+    except (OSError, KeyError, ValueError, TypeError, zipfile.BadZipFile) as error:
+        reason = str(error).splitlines()[0] if str(error) else "damaged"
+        raise ValueError(f"not an sdf.npz of train.py ({type(error).__name__}: {reason})") \
+            from None
     if sdf.ndim != 3 or hull_sdf.shape != sdf.shape or origin.shape != (3,) or not voxel > 0:
         raise ValueError(f"inconsistent sdf.npz (sdf {sdf.shape}, hull_sdf {hull_sdf.shape}, "
                          f"origin {origin.shape}, voxel {voxel})")

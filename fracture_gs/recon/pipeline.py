@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, TextIO
 
 import numpy as np
@@ -22,7 +22,7 @@ from tqdm import tqdm
 
 from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
-from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, write_ply
+from fracture_gs.gaussians import GaussianModel, PlyFormatError, write_ply
 from fracture_gs.gaussians.model import PARAMETER_NAMES
 from fracture_gs.recon import model_io
 from fracture_gs.recon.errors import ReconstructionError
@@ -31,7 +31,8 @@ from fracture_gs.recon.gaussian_fit import (FitSettings, FitState, evaluate_view
 from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.grid import VoxelGrid
 from fracture_gs.recon.hull import visual_hull
-from fracture_gs.recon.imported import bind_to_nearest, iteration_of, opacity_field_sdf
+from fracture_gs.recon.imported import (bind_to_nearest, iteration_of, opacity_field_sdf,
+                                        read_imported, unbound_warning)
 from fracture_gs.recon.meshing import extract_mesh
 from fracture_gs.recon.particles import ParticleSet, sample_particles
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
@@ -131,7 +132,7 @@ def read_inputs(config: TrainConfig) -> Inputs:
                             config.white_background)
     imported = None
     if config.from_ply is not None:
-        imported = read_ply(config.from_ply)
+        imported = read_imported(config.from_ply)
     if train.masks is None and config.from_sdf is None and not (imported is not None
                                                                 and config.bbox is not None):
         where = os.path.dirname(train.image_paths[0])
@@ -335,6 +336,8 @@ def train(config: TrainConfig, out: TextIO | None = None) -> dict[str, Any]:
     out = out if out is not None else sys.stdout
     check_config(config)
     inputs = read_inputs(config)
+    if inputs.imported is not None:  # the model folder holds the imported Gaussians' degree
+        config = replace(config, sh_degree=inputs.imported.sh_degree)
     device = torch.device(config.device)
     folder = model_io.OutputFolder(config.model_path)
     with model_io.run_lock(config.model_path):
@@ -389,6 +392,9 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
                                                   gaussians.means.detach().cpu().numpy())
         referenced = np.unique(gaussian_index[surface])
         summary["unbound_gaussians"] = int(gaussians.num_gaussians - len(referenced))
+        warning = unbound_warning(gaussian_index[surface], gaussians.num_gaussians)
+        if warning is not None:
+            print(f"warning: {warning}", file=sys.stderr)
     else:
         gaussians, iteration = _fit(config, inputs, folder, particles, part_id, timer, log_rows,
                                     rng, summary, device, checkpoint)

@@ -1,6 +1,7 @@
 """Pinhole camera in the OpenCV / gsplat convention (SPEC §6.1)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -32,7 +33,10 @@ class Camera:
             raise ValueError("world_to_camera contains NaN or Inf")
         if self.width < 1 or self.height < 1:
             raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        if self.fx <= 0 or self.fy <= 0:
+        for name in ("fx", "fy", "cx", "cy", "near"):
+            if not math.isfinite(float(getattr(self, name))):
+                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)}")
+        if not (self.fx > 0 and self.fy > 0):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
 
     @property

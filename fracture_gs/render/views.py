@@ -28,6 +28,9 @@ from fracture_gs.render.camera import Camera
 ORBIT_ELEVATION_DEG = 20.0
 ORBIT_FOV_DEG = 40.0
 ORBIT_MARGIN = 1.15     # bounding sphere radius → distance margin
+# Largest image side rendered: an 8K frame; a larger one does not fit an H.264 video and takes
+# gigabytes per image buffer.
+MAX_IMAGE_SIDE = 8192
 
 
 class ViewSpecError(ValueError):
@@ -40,6 +43,14 @@ class View:
 
     name: str
     camera: Camera
+
+
+def check_image_size(width: int, height: int, what: str) -> None:
+    """Raise :class:`ViewSpecError` naming ``what`` unless ``width`` x ``height`` is a size that
+    can be rendered: both sides in 1..MAX_IMAGE_SIDE."""
+    if not (1 <= width <= MAX_IMAGE_SIDE and 1 <= height <= MAX_IMAGE_SIDE):
+        raise ViewSpecError(f"{what}: image size {width}x{height} is outside 1..{MAX_IMAGE_SIDE} "
+                            "pixels per side")
 
 
 def _safe_name(name: str) -> str:
@@ -57,6 +68,7 @@ def orbit_views(count: int, centre: Sequence[float], radius: float, width: int, 
     """
     if count < 1:
         raise ViewSpecError(f"orbit:{count}: the number of cameras must be >= 1")
+    check_image_size(width, height, f"orbit:{count}")
     up_v = np.asarray(up, dtype=np.float64)
     up_v = up_v / np.linalg.norm(up_v)
     seed = np.eye(3)[int(np.argmin(np.abs(up_v)))]
@@ -97,6 +109,8 @@ def cameras_from_json(path: str | Path, size: tuple[int, int] | None = None) -> 
         raise ViewSpecError(f"{path}: not a readable JSON file ({type(exc).__name__})") from None
     if not isinstance(entries, list) or not entries:
         raise ViewSpecError(f"{path}: expected a non-empty list of cameras (3DGS cameras.json)")
+    if size is not None:
+        check_image_size(*size, f"{path}")
     views = []
     for index, entry in enumerate(entries):
         try:
@@ -110,6 +124,11 @@ def cameras_from_json(path: str | Path, size: tuple[int, int] | None = None) -> 
         if rotation.shape != (3, 3) or position.shape != (3,) or \
                 not (np.isfinite(rotation).all() and np.isfinite(position).all()):
             raise ViewSpecError(f"{path}: camera {index} has a malformed rotation or position")
+        if not (math.isfinite(fx) and math.isfinite(fy) and fx > 0 and fy > 0):
+            raise ViewSpecError(f"{path}: camera {index} has fx = {fx:g}, fy = {fy:g}; focal "
+                                "lengths must be finite and > 0")
+        if size is None:
+            check_image_size(width, height, f"{path}: camera {index}")
         camera_to_world = np.eye(4)
         camera_to_world[:3, :3] = rotation
         camera_to_world[:3, 3] = position
@@ -180,6 +199,8 @@ def dataset_views(model_dir: Path, split: str, rotation: np.ndarray, scale: floa
     from fracture_gs.data import load_dataset
     from fracture_gs.data.dataset import DatasetError
 
+    if size is not None:
+        check_image_size(*size, f"--views {split}")
     source = dataset_source(model_dir)
     try:
         data = load_dataset(str(source), split=split)

@@ -10,6 +10,7 @@ the file or option at fault, so command-line tools can print it and exit with st
 """
 from __future__ import annotations
 
+import hashlib
 import re
 import zipfile
 from dataclasses import dataclass
@@ -130,6 +131,21 @@ class Simulation:
         if not frames:
             raise SimulationError(f"{frames_dir}: no frame_*.npz files (the run wrote no frames)")
         return cls(root, scene, particles, frames)
+
+    def fingerprint(self) -> str:
+        """SHA-256 (hex) of ``scene.yaml`` and ``particles.npz``: the same for every copy of one
+        run and different for a run of another scene or other particles (SimulationError when a
+        file cannot be read)."""
+        digest = hashlib.sha256()
+        for name in (SCENE_FILE, PARTICLES_FILE):
+            path = self.root / name
+            try:
+                with open(path, "rb") as handle:
+                    for block in iter(lambda: handle.read(1 << 20), b""):
+                        digest.update(block)
+            except OSError as exc:
+                raise SimulationError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+        return digest.hexdigest()
 
     @property
     def object_names(self) -> list[str]:
