@@ -1,6 +1,6 @@
 """Vertical cross-sections of a dropped block over time (issue 14: why a block breaks or not).
 
-    python benchmarks/block_section.py --scene block_test_3.5 --times 0.01 0.02 0.04 0.08 0.15 \\
+    python tools/figures/block_section.py --scene block_test_3.5 --times 0.01 0.02 0.04 0.08 0.15 \\
         --out docs/fragments_test_block_section.png [--no-fragments]
 
 Simulates one block scene of ``bench_fragments.py`` (same builder, grid and settings) and draws,
@@ -17,6 +17,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # the package and bench_fragments.py
 
 import matplotlib
 

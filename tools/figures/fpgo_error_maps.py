@@ -15,7 +15,7 @@ pixels of the reference. With ``--out PNG`` it also draws a grid: per (view, fra
 reference, the render without FPGO, each variant, and each variant's Δ map (red: worse than
 without FPGO, green: better; ±``--scale`` saturates).
 
-    PYTHONPATH=. python benchmarks/fpgo_error_maps.py --sim output/demo/sims/teapot_table \
+    python tools/figures/fpgo_error_maps.py --sim output/demo/sims/teapot_table \
         [--views 8] [--size 400] [--window 5] [--out docs/fpgo_error_maps.png] \
         [--show-views 0 3] [--show-frames 2 4 6]
 """
@@ -29,8 +29,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fpgo_parts import add_window_arguments, frame_variants, open_window  # noqa: E402  (a sibling script)
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # the package and fpgo_parts.py
+from fpgo_parts import add_window_arguments, frame_variants, open_window  # noqa: E402  (benchmarks/fpgo_parts.py)
 
 from fracture_gs.fracture.fpgo import FPGOSettings  # noqa: E402
 from fracture_gs.render.frame_gaussians import SceneGaussians  # noqa: E402

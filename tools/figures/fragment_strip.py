@@ -1,6 +1,6 @@
 """Frame strip of a simulation with its particles coloured by fragment (issue 14 pictures).
 
-    python benchmarks/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
+    python tools/figures/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
         --out docs/fragments_two_spheres.png [--title "two spheres"] [--view 20 -60]
 
 Reads ``frames/frame_NNNNN.npz`` of a ``simulate.py`` folder (which carry ``fragment_id``) and
@@ -11,8 +11,11 @@ line with the pieces per frame.
 from __future__ import annotations
 
 import argparse
+import sys
 import json
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root
 
 import matplotlib
 

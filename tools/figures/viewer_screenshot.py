@@ -2,7 +2,7 @@
 (system chromium + chromium-driver, WebGL on SwiftShader) opens it at one frame and the page is
 saved as a PNG (GUI panel included).
 
-Usage: PYTHONPATH=. python benchmarks/viewer_screenshot.py --sim output/sims/two_spheres \
+Usage: python tools/figures/viewer_screenshot.py --sim output/sims/two_spheres \
            --frame 10 --out docs/viewer.png [--size 1280 800] [--zoom 1.5] [--highlight] \
            [--pieces] [--no-fpgo]
 Prints one JSON line (what it wrote).
@@ -14,6 +14,8 @@ import json
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root
 
 import numpy as np
 import torch
