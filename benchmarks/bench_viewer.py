@@ -1,4 +1,4 @@
-"""How long a 200k-Gaussian frame takes to reach the browser in ``view.py`` (issue 12: ≤ 1 s).
+"""How long a 200k-Gaussian frame takes to reach the browser in ``view.py`` (≤ 1 s).
 
 Scene: a model folder whose ``--gaussians`` particles (default 200k, a lattice ball) each own an
 isotropic Gaussian (SH degree 3), and a simulation folder with ``--frames`` frames in which the

@@ -1,9 +1,9 @@
-"""Crack opening inside an object (issue 14): damage-gradient partitioning of the object grids.
+"""Crack opening inside an object: damage-gradient partitioning of the object grids.
 
 Kernels against their torch twins (P2G damage, damage gradients and node references, fields A / B
 at split nodes, split-aware G2P), thread-count determinism, and physics: a pre-cracked bar comes
 apart only with fragments, momentum is conserved with fragments on, energy never rises. Bigger
-acceptance runs (the issue's block drops, the cost) are in benchmarks/bench_fragments.py and
+runs (block drops, the cost) are in benchmarks/bench_fragments.py and
 benchmarks/bench_mpm.py.
 """
 from __future__ import annotations

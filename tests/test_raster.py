@@ -1,4 +1,4 @@
-"""The C++ Gaussian rasterizer against its dense PyTorch twin (SPEC §6.1, issue 3)."""
+"""The C++ Gaussian rasterizer against its dense PyTorch twin (docs/formulas.md §11)."""
 from __future__ import annotations
 
 

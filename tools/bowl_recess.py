@@ -1,4 +1,4 @@
-"""How much of the generated bowl's volume is the recess under it, inside the foot ring (issue 10).
+"""How much of the generated bowl's volume is the recess under it, inside the foot ring.
 
 The bowl of ``python -m fracture_gs.data.synthetic --object bowl`` is a surface of revolution: a
 wall of constant thickness around a quarter-ellipse mid curve, standing on a foot ring. Inside

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# GPU check (issue 15, finding 10): build the CUDA kernels, run every kernel-vs-twin test on the GPU
+# GPU check: build the CUDA kernels, run every kernel-vs-twin test on the GPU
 # (MPM ops, constitutive update, rasterizer forward + backward; the CPU kernel's result is the
 # reference there), then bench_mpm.py and bench_raster.py with --device cuda. Prints everything and
 # keeps a copy in $GPU_CHECK_OUT (default /tmp/fracture_gs_gpu_check). Meant to finish in under

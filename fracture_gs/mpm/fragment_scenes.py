@@ -1,4 +1,4 @@
-"""Lattice scenes of the fragment acceptance (issue 14), shared by tests and benchmarks.
+"""Lattice scenes of the crack-opening checks (docs/simulation.md), shared by tests and benchmarks.
 
 * :func:`block_drop` — a NACC (or elastic) cube dropped onto the ground;
 * :func:`precracked_bar` — a bar whose middle slab of particles is fractured from the start

@@ -14,7 +14,7 @@ import torch
 
 from fracture_gs.fracture.spatial import connected_components
 
-LINK_SPACINGS = 1.5            # link distance, in rest particle spacings (issue 14's measure)
+LINK_SPACINGS = 1.5            # link distance, in rest particle spacings (docs/formulas.md §8)
 MIN_FRAGMENT_FRACTION = 0.01   # diagnostics count pieces with at least this share of their object
 
 

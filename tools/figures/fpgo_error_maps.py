@@ -1,6 +1,6 @@
-"""Where FPGO's parts gain or lose against the run without FPGO, pixel by pixel (issue 13, the ablation).
+"""Where FPGO's parts gain or lose against the run without FPGO, pixel by pixel (docs/results.md, The demo).
 
-The self-referenced protocol (SPEC §7) scores each window frame against the reference frame
+The self-referenced protocol (docs/formulas.md §14) scores each window frame against the reference frame
 I_ref = t_f − 1 of the same view. This script renders the reference and the window frames of
 ``--sim`` from ``--views`` orbit cameras, without FPGO and with each of FPGO's two parts alone
 (``benchmarks/fpgo_parts.py``: the lenses, ``fpgo_without_interior``; the interior Gaussians,

@@ -1,4 +1,4 @@
-"""Frame strip of a simulation with its particles coloured by fragment (issue 14 pictures).
+"""Frame strip of a simulation with its particles coloured by fragment (docs/simulation.md).
 
     python tools/figures/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
         --out docs/fragments_two_spheres.png [--title "two spheres"] [--view 20 -60]
@@ -58,7 +58,7 @@ def main() -> None:
     except (OutputError, OSError, KeyError, ValueError) as error:   # one line, not a traceback
         parser.exit(2, f"error: {error}\n")
     if any("fragment_id" not in frame for frame in frames):
-        parser.exit(2, f"error: {args.sim}: frames have no fragment_id (simulated before issue 14?)\n")
+        parser.exit(2, f"error: {args.sim}: frames have no fragment_id (simulated without fragment ids?)\n")
     everything = np.concatenate([frame["x"] for frame in frames])
     lower, upper = everything.min(0), everything.max(0)
     centre, half = (lower + upper) / 2, (upper - lower).max() / 2 * 1.05

@@ -1,7 +1,7 @@
 """A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top rows:
 one per lens exclusive rule of ``--exclusive-rows``, default the group rule; ``--no-exclusive-row``
 adds lenses that blend like all others; ``--interior-all-row`` FPGO with a Gaussian for every
-fractured interior particle, SPEC §6.3 step 4 as written) and without FPGO (bottom row), from one
+fractured interior particle, every fractured interior particle) and without FPGO (bottom row), from one
 orbit view.
 
 Usage: python tools/figures/frame_strip.py --sim output/sims/two_spheres \

@@ -48,7 +48,7 @@ def main() -> int:
     parser.add_argument("--size", type=int, nargs=2, default=(1280, 800), metavar=("W", "H"))
     parser.add_argument("--highlight", action="store_true", help="fractured particles in magenta")
     parser.add_argument("--pieces", action="store_true",
-                        help="colour by piece (frames with fragment_id, simulated since issue 14)")
+                        help="colour by piece (frames with fragment_id, any recent simulate.py run)")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false")
     parser.add_argument("--zoom", type=float, default=1.0,
                         help="move the camera this many times closer than the initial view")
