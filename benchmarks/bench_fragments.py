@@ -29,14 +29,17 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import fragment_ids, fragment_sizes
 from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS
 from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
+from fragment_scenes import block_drop, colliding_spheres, precracked_bar  # noqa: E402
 
 PIECE_SHARE = 0.02  # pieces of >= 2 % of the particles count
 

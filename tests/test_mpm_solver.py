@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
-from fracture_gs.mpm.fragment_scenes import block_drop
+from fragment_scenes import block_drop
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary, SimulationBlowUp
 from thread_counts import last_lines_per_thread_count

@@ -15,13 +15,14 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the package and headless_browser.py
 
 import numpy as np
 import torch
 
 from fracture_gs.viewer.app import Viewer, ViewerOptions
-from fracture_gs.viewer.browser import HeadlessBrowser, find_chromium, wait_for
+from headless_browser import HeadlessBrowser, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
 
 

@@ -18,7 +18,7 @@ import torch
 
 from fracture_gs.config.scene import PrimitiveConfig
 
-from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.scene import sample_primitive
