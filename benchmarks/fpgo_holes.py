@@ -18,7 +18,7 @@ the silhouette's particles: the baseline's Gaussians of those tiny fragments, wh
 draw, are not counted either (``no_fpgo``). They are not part of the object the silhouette
 measures, and would otherwise cover its pixels (a crumb projected onto the body, or floating just
 outside its outline) in the baseline only. ``no_fpgo_all_gaussians`` is the baseline with every
-Gaussian counted (this script's only baseline until 2026-12-04). ``--silhouette all`` takes the
+Gaussian counted. ``--silhouette all`` takes the
 silhouette from every particle, the tiny fragments included (FPGO then has holes wherever it left
 one out).
 
