@@ -1,5 +1,6 @@
 """docs/own_object.md as a new user follows it: the commands of its tested bash block, in order,
-with its scene YAML, on the shipped Blender-format fixture (tiny sizes: seconds)."""
+with its scene YAML, on the shipped Blender-format fixture (tiny sizes: seconds); and its train.py
+line on the same photos laid out as a COLMAP folder."""
 from __future__ import annotations
 
 import re
@@ -7,12 +8,16 @@ import shlex
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from fracture_gs.cli import render as render_cli
 from fracture_gs.cli import simulate as simulate_cli
 from fracture_gs.cli import train as train_cli
+from fracture_gs.data import load_dataset
+from fracture_gs.data.colmap_io import ColmapCamera, ColmapImage, write_model_text
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "own_object.md"
@@ -55,3 +60,33 @@ def test_the_documented_steps_train_simulate_and_render(tmp_path: Path,
     assert end[:, 2].mean() < start[:, 2].mean()   # it fell
     renders = sim / "renders"
     assert len(list(renders.glob("*/00006.png"))) == 2 and list(renders.glob("video_*.mp4"))
+
+
+def blender_to_colmap(blender: Path, colmap: Path) -> None:
+    """The Blender-format fixture as a COLMAP folder: sparse/0 (text), images/ and masks/."""
+    cameras, images = [], []
+    (colmap / "images").mkdir(parents=True)
+    (colmap / "masks").mkdir()
+    for split in ("train", "test"):
+        data = load_dataset(str(blender), split=split)
+        for camera, image, mask in zip(data.cameras, data.images, data.masks):
+            index = len(cameras) + 1
+            name = f"{split}_{index:03d}.png"
+            cameras.append(ColmapCamera(index, "PINHOLE", camera.width, camera.height,
+                                        np.array([camera.fx, camera.fy, camera.cx, camera.cy], dtype=float)))
+            world_to_camera = camera.world_to_camera.double().numpy()
+            x, y, z, w = Rotation.from_matrix(world_to_camera[:3, :3]).as_quat()
+            images.append(ColmapImage(index, np.array([w, x, y, z]), world_to_camera[:3, 3].copy(), index, name))
+            rgb = (image.clamp(0, 1).numpy() * 255).round().astype(np.uint8)
+            cv2.imwrite(str(colmap / "images" / name), rgb[:, :, ::-1])
+            cv2.imwrite(str(colmap / "masks" / name), ((mask.numpy() > 0.5) * 255).astype(np.uint8))
+    write_model_text(str(colmap / "sparse" / "0"), cameras, images, np.zeros((1, 3)), np.zeros((1, 3), np.uint8))
+
+
+def test_the_documented_train_command_on_a_colmap_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The train.py line of docs/own_object.md on the same photos laid out as a COLMAP folder."""
+    monkeypatch.chdir(tmp_path)
+    blender_to_colmap(ROOT / "tests" / "data" / "synthetic_fixture", tmp_path / "my_photos")
+    train_line = next(line for line in doc_block("bash").splitlines() if line.startswith("python train.py"))
+    run_line(train_line)
+    assert (tmp_path / "output" / "my_object" / "particles.ply").is_file()
