@@ -2,7 +2,7 @@
 """Render a simulation with Gaussian splatting and FPGO: ``python render.py --sim output/sims/<name>``.
 
 ``-m <model>`` renders a trained model instead. See ``fracture_gs.cli.render`` (options, exit
-codes) and SPEC §6.
+codes) and docs/rendering.md.
 """
 import sys
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Run a Collision-MPM fracture simulation: ``python simulate.py --scene configs/two_spheres.yaml``.
 
-See ``fracture_gs.cli.simulate`` (options, exit codes) and SPEC §5.
+See ``fracture_gs.cli.simulate`` (options, exit codes) and docs/simulation.md.
 """
 import sys
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Reconstruct an object from multi-view images: ``python train.py -s data/teapot``.
 
-See ``fracture_gs.cli.train`` (options, exit codes) and SPEC §4.
+See ``fracture_gs.cli.train`` (options, exit codes) and docs/training.md.
 """
 import sys
 

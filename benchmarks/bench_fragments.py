@@ -1,8 +1,8 @@
-"""Acceptance runs of issue 14 (crack opening inside objects), printed as JSON.
+"""Block drops and bars with crack opening inside objects (docs/simulation.md), printed as JSON.
 
     python benchmarks/bench_fragments.py [--duration 0.3] [--grid 64] [--only block_weak_6 ...]
 
-1. Block drops (0.2 m cube, 8 particles per cell, on the ground): the issue's weak block
+1. Block drops (0.2 m cube, 8 particles per cell, on the ground): a weak block
    (E = 1e4, ρ = 100, α0 = −0.01) at 6 and 12 m/s and the tests' setting (E = 1e5, ρ = 1000,
    β = 0.3, 3.5 m/s), each with ``fragments`` true and false; the tests' block with E and ρ divided
    by 10 (same E/ρ, same dynamics), the weak block with α0 = −5 and an elastic block, with fragments. Reported: fractured share, the pieces (connected components
@@ -20,7 +20,7 @@ the exact speed (the weak block's small corner pieces at 6 m/s sit near the 2 % 
 ``--speeds 3.5 3.9 4.0 4.2`` runs the chosen block scenes at these speeds (m/s) with each of their
 ``fragments`` settings, to find the speed from which a block breaks apart with and without the
 partition. ``--jitter-seeds 0 1 2`` samples the blocks as a YAML scene's box primitive is sampled
-(jittered, 16,751 particles at grid 64: the issue's own count) with each seed, instead of as a
+(jittered, 16,751 particles at grid 64) with each seed, instead of as a
 lattice; ``--ground-friction 0.5`` sets the ground's friction (a YAML ground's default).
 """
 from __future__ import annotations
@@ -29,16 +29,19 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
-from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import fragment_ids, fragment_sizes
 from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS
 from scipy.spatial import cKDTree
 
-PIECE_SHARE = 0.02  # acceptance 1: pieces of >= 2 % of the particles
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
+from fragment_scenes import block_drop, colliding_spheres, precracked_bar  # noqa: E402
+
+PIECE_SHARE = 0.02  # pieces of >= 2 % of the particles count
 
 BLOCKS = {  # name: (speed, E, density, alpha0 (None: elastic), beta, fragments settings)
     "block_weak_6": (6.0, 1e4, 100.0, -0.01, 0.5, (True, False)),

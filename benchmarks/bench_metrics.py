@@ -1,4 +1,4 @@
-"""Metric speed (SPEC §7): LPIPS (AlexNet) ms per image pair, FID-Inception ms per image, and the
+"""Metric speed (docs/formulas.md §14): LPIPS (AlexNet) ms per image pair, FID-Inception ms per image, and the
 FID distance itself from N reference / M compared images.
 
 Images are random smooth pictures of ``--size``² (default 400, the dataset resolution), fed

@@ -24,16 +24,20 @@ import argparse
 import json
 import math
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import torch
 
 from fracture_gs._backend import compiled_module
-from fracture_gs.mpm.lattice import LatticeBody, lattice_sphere, particle_set
 from fracture_gs.materials import BrittleMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
+from lattice import LatticeBody, lattice_sphere, particle_set  # noqa: E402
 
 
 MATERIALS = {

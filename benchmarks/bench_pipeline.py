@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Wall time per stage and peak memory of ``demo.py`` (SPEC §8), printed as JSON.
+"""Wall time per stage and peak memory of ``demo.py`` (docs/results.md), printed as JSON.
 
     python benchmarks/bench_pipeline.py [--profile tiny|quick|default] [--out DIR] [--keep]
 

@@ -1,6 +1,6 @@
 """Rasterizer speed: forward and forward+backward ms per image, C++ vs the torch reference.
 
-Scene (issue 3): N Gaussians evenly spread over a unit sphere's surface (Fibonacci lattice),
+Scene: N Gaussians evenly spread over a unit sphere's surface (Fibonacci lattice),
 isotropic scale 1.5 × their mean spacing, opacity 0.8, SH degree 3, seen from 3 units away
 at 512×512 with a 60° field of view. Runs 100k and 1M Gaussians (``--skip-1m`` to skip the
 latter) with the compiled backend, and the dense reference at a size it can handle

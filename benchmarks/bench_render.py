@@ -1,6 +1,6 @@
 """Per-frame cost of rendering a simulation frame, with and without FPGO.
 
-Scene (issue 11): a solid ball of ``--particles`` particles (default 200k) on a cubic lattice;
+Scene: a solid ball of ``--particles`` particles (default 200k) on a cubic lattice;
 the outer layer carries trained-looking Gaussians (isotropic, 0.7 × spacing, SH degree 3). Six
 random crack bands flag ``--fractured`` (default half) of the particles as fractured; the pieces
 between the cracks move apart by half a spacing and the fractured particles scatter by a further

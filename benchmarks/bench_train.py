@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Speed of train.py's two iterative stages (issue 10), printed as JSON.
+"""Speed of train.py's two iterative stages, printed as JSON.
 
 * Gaussian stage: iterations per second of one fitting step (render at 400x400, L1 + SSIM
   loss, backward, Adam, offset projection) with the default 40,000 isotropic Gaussians.

@@ -1,11 +1,11 @@
-"""How long a 200k-Gaussian frame takes to reach the browser in ``view.py`` (issue 12: ≤ 1 s).
+"""How long a 200k-Gaussian frame takes to reach the browser in ``view.py`` (≤ 1 s).
 
 Scene: a model folder whose ``--gaussians`` particles (default 200k, a lattice ball) each own an
 isotropic Gaussian (SH degree 3), and a simulation folder with ``--frames`` frames in which the
 ball moves, shears and a growing half of it is fractured (so FPGO runs).
 
 Two sessions, each with a fresh viewer (empty cache): ``probe_only`` — one websocket client
-(:class:`~fracture_gs.viewer.browser.WebsocketProbe`, a minimal viser client in Python) — and
+(``WebsocketProbe`` of tests/headless_browser.py, a minimal viser client in Python) — and
 ``with_browser`` — the probe plus headless Chromium (system chromium + chromium-driver, WebGL on
 SwiftShader). Every second frame (2, 4, ...; showing a frame prefetches its successor) is shown
 for the first time (cold: prepared on demand), then again (warm: from the LRU cache). From the moment the frame slider is set:
@@ -48,8 +48,10 @@ import yaml
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.render.model_folder import write_model_folder
 from fracture_gs.viewer.app import Viewer, ViewerOptions
-from fracture_gs.viewer.browser import HeadlessBrowser, WebsocketProbe, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
+from headless_browser import HeadlessBrowser, WebsocketProbe, find_chromium, wait_for  # noqa: E402
 
 TARGET_MS = 1000.0
 WINDOW_SIZE = (480, 360)

@@ -1,6 +1,6 @@
-"""What FPGO adds to the per-frame render time of a simulation (issue 11, acceptance 3).
+"""What FPGO adds to the per-frame render time of a simulation.
 
-For every frame from the fracture onset on (SPEC §7), the frame's Gaussians are built and drawn
+For every frame from the fracture onset on (docs/formulas.md §14), the frame's Gaussians are built and drawn
 from ``--views`` orbit cameras at ``--size``² without FPGO and with FPGO, the two runs
 interleaved frame by frame (and their order alternated) so that a machine whose load drifts
 disturbs both alike. Per frame: the Gaussians (deformation, plus FPGO), the rasterization of

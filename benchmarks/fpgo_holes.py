@@ -1,7 +1,7 @@
-"""Holes in a rendered fracture, with and without FPGO (issue 11, acceptance 2).
+"""Holes in a rendered fracture, with and without FPGO.
 
 For every frame from the fracture onset on (first frame whose fractured count exceeds
-max(10, 0.1 % of the particles), SPEC §7) and each of ``--views`` orbit cameras, the frame is
+max(10, 0.1 % of the particles), docs/formulas.md §14) and each of ``--views`` orbit cameras, the frame is
 rendered with FPGO, with FPGO but lens Gaussians not ``exclusive``, and without FPGO (the
 PhysGaussian / GIC baseline). The object's silhouette is where its particles project, dilated by
 ``--dilate`` projected rest spacings, which closes the gaps between neighbouring particles; the
@@ -18,7 +18,7 @@ the silhouette's particles: the baseline's Gaussians of those tiny fragments, wh
 draw, are not counted either (``no_fpgo``). They are not part of the object the silhouette
 measures, and would otherwise cover its pixels (a crumb projected onto the body, or floating just
 outside its outline) in the baseline only. ``no_fpgo_all_gaussians`` is the baseline with every
-Gaussian counted (this script's only baseline until 2026-12-04). ``--silhouette all`` takes the
+Gaussian counted. ``--silhouette all`` takes the
 silhouette from every particle, the tiny fragments included (FPGO then has holes wherever it left
 one out).
 
@@ -29,7 +29,7 @@ only, dark grey in both.
 Usage: PYTHONPATH=. python benchmarks/fpgo_holes.py --sim output/sims/<name> [--views 4]
            [--size 400] [--markdown] [--map FRAME PATH]
 Prints one JSON object (per-frame numbers, both averaged over the views); ``--markdown`` adds a
-table for the README on stderr.
+table for docs/rendering.md on stderr.
 """
 from __future__ import annotations
 
@@ -186,7 +186,7 @@ def hole_map(silhouette_pixels: np.ndarray, holes_fpgo: np.ndarray,
 
 
 def markdown_table(rows: list[dict]) -> str:
-    """The README table: hole fractions in the closed and in the plain dilated silhouette, the
+    """The markdown table: hole fractions in the closed and in the plain dilated silhouette, the
     baseline also with the Gaussians of the tiny fragments counted."""
     lines = ["| frame | fractured | closed: FPGO | closed: no FPGO | dilated: FPGO | "
              "dilated: no FPGO | dilated: no FPGO, tiny fragments' Gaussians counted |",

@@ -1,6 +1,6 @@
-"""Which part of FPGO moves the self-referenced metrics of a simulation (issue 13, the ablation).
+"""Which part of FPGO moves the self-referenced metrics of a simulation (the ablation, docs/results.md).
 
-Renders the reference frame and the window frames of ``--sim`` (SPEC §7) from ``--views`` orbit
+Renders the reference frame and the window frames of ``--sim`` (docs/formulas.md §14) from ``--views`` orbit
 cameras with the frame's Gaussians in seven variants, scores each with the protocol of
 ``evaluate.py`` and compares it with the run without FPGO (paired over the views,
 :mod:`fracture_gs.metrics.paired`):

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Acceptance measures of a train.py model against its synthetic dataset (issue 10), as JSON.
+"""Quality measures of a train.py model against its synthetic dataset, as JSON.
 
     python benchmarks/recon_quality.py -m output/teapot -s /work/data/teapot
 

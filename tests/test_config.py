@@ -1,4 +1,4 @@
-"""Scene YAML validation (SPEC §5.1): typed config, defaults, key-path errors."""
+"""Scene YAML validation (docs/scenes.md): typed config, defaults, key-path errors."""
 from __future__ import annotations
 
 import copy

@@ -1,4 +1,4 @@
-"""Every shipped ``configs/*.yaml`` scene validates, builds and runs (issue 15, finding 7).
+"""Every shipped ``configs/*.yaml`` scene validates, builds and runs.
 
 A scene file that no test reads can rot silently (a renamed key, an object pushed outside the
 domain by a grid change, a material that blows up). Each file here is read unchanged, built at

@@ -1,6 +1,6 @@
 """demo.py end to end at the 'tiny' profile (48x48 images, 6 + 2 views, 300 Gaussians per
 object, 6 frames on a 32^3 grid): datasets, training, scene, both simulations, three renders,
-evaluation; then a second call that skips every finished stage (issue 13, acceptance 2)."""
+evaluation; then a second call that skips every finished stage."""
 from __future__ import annotations
 
 import json
@@ -59,7 +59,7 @@ def test_demo_bad_options_are_one_line(tmp_path: Path) -> None:
 
 def test_demo_names_a_kept_dataset_made_at_other_sizes(tmp_path: Path) -> None:
     """A dataset left in the data folder is kept, but one made at other image sizes or view
-    counts than the profile's is named as such (it trains a different model than the README's)."""
+    counts than the profile's is named as such (it trains a different model than the one docs/results.md reports)."""
     from fracture_gs.cli.demo import PROFILES, _dataset_mismatch
 
     profile = PROFILES["default"]

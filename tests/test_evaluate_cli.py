@@ -1,5 +1,5 @@
 """evaluate.py on a tiny fracturing collision (795 particles, 8 frames) and a tiny trained model:
-the SPEC §7 protocol end to end, report files, missing weights, bad input (issue 13)."""
+the protocol of docs/formulas.md §14 end to end, report files, missing weights, bad input."""
 from __future__ import annotations
 
 import json

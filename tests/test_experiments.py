@@ -1,6 +1,6 @@
 """evaluate.py --experiment on tiny primitive stand-ins of the paper's scenes
 (tests/data/experiments_tiny): tables, plots and the physics each experiment asserts; local
-worker processes; the Ray path when Ray is installed (issue 13, acceptance 3-5)."""
+worker processes; the Ray path when Ray is installed."""
 from __future__ import annotations
 
 import json

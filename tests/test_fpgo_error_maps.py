@@ -1,4 +1,4 @@
-"""The pixel bookkeeping of benchmarks/fpgo_error_maps.py, whose sums the README quotes (issue 13):
+"""The pixel bookkeeping of tools/figures/fpgo_error_maps.py, whose sums docs/results.md quotes:
 the change of squared error a variant makes, split by what the reference frame shows."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools" / "figures"))
 from fpgo_error_maps import delta_map, squared_error, summary  # noqa: E402
 
 

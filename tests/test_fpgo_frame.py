@@ -160,7 +160,7 @@ def test_fpgo_replaces_fractured_gaussians_by_exclusive_lenses(block):
 
 def test_lens_exclusive_rules_and_their_ply_round_trip(block, tmp_path: Path):
     """'group' (the default, paper §3.2.2) lies between 'none' (lenses blend like all others)
-    and 'all' (SPEC §6.1's global rule, the fewest lenses per pixel) in how much the lenses
+    and 'all' (the global rule of docs/formulas.md §11, the fewest lenses per pixel) in how much the lenses
     cover; each rule survives write_ply / read_frame_ply."""
     sim, _, points, _ = block
     frame = crack_frame(sim, points, gap=0.6 * SPACING)
@@ -221,7 +221,7 @@ def test_fractured_interior_particles_get_interpolated_gaussians(tmp_path: Path)
 def test_only_exposed_fractured_interior_particles_are_drawn(tmp_path: Path):
     """The NACC flag marks a damaged volume; FPGO's default draws its interior particles only on
     a fracture surface (they kept fewer than ``exposure`` of their rest neighbours), the buried
-    ones stay undrawn as without fracture; ``interior="all"`` draws every one (SPEC §6.3 step 4
+    ones stay undrawn as without fracture; ``interior="all"`` draws every one (``--interior all``;
     as written)."""
     sim, _, points, surface = make_block(tmp_path, jitter=0.15)
     frame = crack_frame(sim, points, gap=3.0 * SPACING)

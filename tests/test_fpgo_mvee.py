@@ -1,4 +1,4 @@
-"""FPGO lens ellipsoids (SPEC §6.3 step 3, paper App. A.4) on hand-computed sphere pairs.
+"""FPGO lens ellipsoids (docs/formulas.md §13 step 4, paper App. A.4) on hand-computed sphere pairs.
 
 Every case runs on the compiled kernel and on its torch twin.
 """

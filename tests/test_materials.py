@@ -1,5 +1,5 @@
 """Constitutive models: compiled kernels (csrc/common/constitutive.h) vs the torch twins, and
-the physical properties of the NACC return map (SPEC §5.3)."""
+the physical properties of the NACC return map (docs/formulas.md §4)."""
 from __future__ import annotations
 
 import math
@@ -433,9 +433,9 @@ def test_cohesionless_material_fails_in_tension(backend: str) -> None:
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_confined_shear_reaches_the_fracture_flag(backend: str) -> None:
     """Simple shear of a NACC point under a small confining pressure (p ~ 1e-6 K) softens it until
-    its cohesion is gone: alpha reaches the fracture threshold 0 (issue 15, finding 3). With SPEC
-    5.3's absolute gate (harden only while p0 > 1e-4 K) and tolerance (1e-8 K^2), alpha stalled at
-    about -9e-5 / xi and the particle was never flagged.
+    its cohesion is gone: alpha reaches the fracture threshold 0. With an absolute gate (harden only while
+    p0 > 1e-4 K) and tolerance (1e-8 K^2), alpha would stall at about -9e-5 / xi and the particle
+    would never be flagged (docs/deviations.md, NACC tolerance and hardening gate).
 
     The torch reference runs in float64: at p ~ 1e-6 K the volumetric strain is near float32's
     resolution of F (~1e-7), and over hundreds of float32 steps the pressure drifts by rounding

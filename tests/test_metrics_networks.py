@@ -1,4 +1,4 @@
-"""LPIPS (AlexNet) and FID (InceptionV3) with the packaged pretrained weights (SPEC §7)."""
+"""LPIPS (AlexNet) and FID (InceptionV3) with the packaged pretrained weights (docs/formulas.md §14)."""
 import importlib.util
 import io
 import pickle

@@ -1,4 +1,4 @@
-"""Fracture onset, reference frame and window (SPEC §7) on synthetic histories."""
+"""Fracture onset, reference frame and window (docs/formulas.md §14) on synthetic histories."""
 from pathlib import Path
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Self-referenced protocol (SPEC §7): PSNR against hand-computed values, JSON, unavailable
+"""Self-referenced protocol (docs/formulas.md §14): PSNR against hand-computed values, JSON, unavailable
 networks. The networks themselves are tested in test_metrics_networks.py."""
 import math
 

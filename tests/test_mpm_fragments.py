@@ -1,9 +1,9 @@
-"""Crack opening inside an object (issue 14): damage-gradient partitioning of the object grids.
+"""Crack opening inside an object: damage-gradient partitioning of the object grids.
 
 Kernels against their torch twins (P2G damage, damage gradients and node references, fields A / B
 at split nodes, split-aware G2P), thread-count determinism, and physics: a pre-cracked bar comes
 apart only with fragments, momentum is conserved with fragments on, energy never rises. Bigger
-acceptance runs (the issue's block drops, the cost) are in benchmarks/bench_fragments.py and
+runs (block drops, the cost) are in benchmarks/bench_fragments.py and
 benchmarks/bench_mpm.py.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
-from fracture_gs.mpm.fragment_scenes import block_drop, colliding_spheres, precracked_bar
+from fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes, piece_ranks
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.types import BLOCK, ContactSettings, Domain
@@ -311,7 +311,7 @@ def test_fragment_field_blocks_match_twin():
 
 STATE_HASH_SCRIPT = textwrap.dedent("""
     import hashlib, sys
-    from fracture_gs.mpm.fragment_scenes import precracked_bar
+    from fragment_scenes import precracked_bar
     solver, _ = precracked_bar(grid=32, length=0.3, width=0.1, backend="cpp")
     split = 0
     for _ in range(30):

@@ -1,4 +1,4 @@
-"""Compiled MPM kernels against their PyTorch twins on random inputs (issue 2, acceptance 1).
+"""Compiled MPM kernels against their PyTorch twins on random inputs.
 
 The twins run in float64 on the same float32 inputs, so the only differences are the float32
 arithmetic of the kernels; every field must agree to 1e-4 relative to its magnitude. Each
@@ -259,7 +259,7 @@ def test_contact_impulse_by_hand(backend, device):
     # m_a = 1, m_b = 2: reduced mass 2/3; relative velocity (1, 0.5, 0), normal +x: v_n = 1, j_n = 2/3.
     v = contact_at_one_node(backend, device, strength=1.0, friction=0.0, gap_in_cells=0.4)
     assert torch.allclose(v, torch.tensor([[1 / 3, 0.5, 0.0], [1 / 3, 0.0, 0.0]], dtype=torch.float64), atol=1e-6)
-    # Friction caps the tangential impulse at mu_f s j_n (SPEC §5.4): s = 0.5, mu_f = 0.4 -> 0.4 * 0.5 * 2/3.
+    # Friction caps the tangential impulse at mu_f s j_n (docs/formulas.md §7): s = 0.5, mu_f = 0.4 -> 0.4 * 0.5 * 2/3.
     v = contact_at_one_node(backend, device, strength=0.5, friction=0.4, gap_in_cells=0.4)
     jn, jt = 0.5 * 2 / 3, 0.4 * 0.5 * 2 / 3
     assert torch.allclose(v, torch.tensor([[1 - jn, 0.5 - jt, 0.0], [jn / 2, jt / 2, 0.0]], dtype=torch.float64),
@@ -281,7 +281,7 @@ def test_contact_needs_the_mass_centres_within_the_gap(backend, device):
     assert torch.equal(contact_at_one_node(backend, device, 1.0, 0.0, gap_in_cells=1.2), untouched)
     # Interpenetrated (negative gap): contact.
     assert not torch.equal(contact_at_one_node(backend, device, 1.0, 0.0, gap_in_cells=-0.5), untouched)
-    # Without the check (max_gap = inf, SPEC §5.4 as written) the distant pair is a contact too.
+    # Without the check (max_gap = inf, no detection test) the distant pair is a contact too.
     assert not torch.equal(contact_at_one_node(backend, device, 1.0, 0.0, gap_in_cells=1.2,
                                                max_gap_cells=math.inf), untouched)
 

@@ -1,9 +1,9 @@
-"""Physics of the Collision-MPM solver (issue 2, acceptance 3–6; issue 15: thin and surface-only
-bodies, the contact check's effect, boundaries by behaviour).
+"""Physics of the Collision-MPM solver: momentum, contact (thin and surface-only bodies, the
+contact check's effect), boundaries by behaviour.
 
-Every scene also checks acceptance 4: kinetic + elastic + gravitational energy never rises
-above its initial value by more than 1 %. Measured numbers are printed (``pytest -s``) and
-recorded in the README / closing note.
+Every scene also checks that kinetic + elastic + gravitational energy never rises above its
+initial value by more than 1 %. Measured numbers are printed (``pytest -s``); docs/simulation.md
+lists the checks.
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import parse_scene
-from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.solver import CollisionMPM
@@ -112,7 +112,7 @@ def sliding_scene(mode: str, max_gap: float = ContactSettings.max_gap) -> tuple[
 def test_sliding_block_keeps_its_speed_without_adhesion():
     kept = {}
     # collision: our detection; no_check: every node where both bodies have mass is a contact
-    # (SPEC §5.4 as written: acts across a gap and brakes at the corners); mls: one shared grid.
+    # (no detection test: acts across a gap and brakes at the corners); mls: one shared grid.
     for name, mode, max_gap in (("collision", "collision", ContactSettings.max_gap),
                                 ("no_check", "collision", math.inf), ("mls", "mls", ContactSettings.max_gap)):
         solver, _ = sliding_scene(mode, max_gap)
@@ -265,7 +265,7 @@ def closest_approach(solver: CollisionMPM, frames: int, frame_dt: float, monitor
 @pytest.mark.parametrize("phase", [(0.0, 0.0, 0.0), (0.25, 0.3, 0.7), (0.5, 0.5, 0.5)])
 def test_thin_plate_driven_obliquely_into_a_block_stays_out(phase):
     """A shard is a thin body: a one-layer plate hitting a block 15 degrees off the normal must stop
-    at its face, not cross into it (closest approach with SPEC's averaged normal at every node,
+    at its face, not cross into it (closest approach with the averaged normal at every node,
     before contact_normal's rules for sheets: 0.23 / 0.11 / 0.27 dx at these three phases)."""
     solver = plate_into_block_scene(15.0, phase)
     monitor = EnergyMonitor(solver)
@@ -316,7 +316,7 @@ def test_fragment_count_is_monotonic_in_initial_hardening():
 
 
 # ----------------------------------------------------------------------------- boundaries by behaviour
-# (issue 15, finding 8: the boundary kernels are also compared with their twin in test_mpm_kernels.py)
+# (the boundary kernels are also compared with their twin in test_mpm_kernels.py)
 
 STIFF = ElasticMaterial(E=1.0e5, nu=0.3, density=1.0e3)
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
-from fracture_gs.mpm.fragment_scenes import block_drop
+from fragment_scenes import block_drop
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary, SimulationBlowUp
 from thread_counts import last_lines_per_thread_count
@@ -132,7 +132,7 @@ def test_blow_up_is_reported_and_the_state_is_not_committed(backend):
 
 
 def test_blow_up_guard_trips_when_a_particle_moves_more_than_a_cell():
-    """A particle crossing more than one cell in a substep stops the run (issue 15, finding 4): the
+    """A particle crossing more than one cell in a substep stops the run: the
     message names the step and the particle as numbered in the input, the state is not committed.
     The earlier guard only tripped at a whole domain per step."""
     domain = Domain((0, 0, 0), (1, 1, 1), 24)
@@ -163,14 +163,14 @@ def test_blow_up_guard_trips_when_a_particle_moves_more_than_a_cell():
 
 @pytest.mark.parametrize("strength", [-0.1, 2.5, float("nan")])
 def test_contact_strength_outside_0_to_2_is_refused(strength):
-    # The impulse leaves (1 - s) of the normal approach speed: s > 2 would add energy (issue 15, finding 2).
+    # The impulse leaves (1 - s) of the normal approach speed: s > 2 would add energy.
     with pytest.raises(ValueError, match="0 <= s <= 2"):
         ContactSettings(strength=strength)
 
 
 def test_zero_strength_means_no_friction_either():
-    """Friction is capped at mu_f s j_n (SPEC §5.4): with s = 0 two bodies pressed into each other
-    while sliding exchange no momentum at all (before issue 15 the cap was mu_f j_n)."""
+    """Friction is capped at mu_f s j_n (docs/formulas.md §7): with s = 0 two bodies pressed into each other
+    while sliding exchange no momentum at all (docs/formulas.md §7)."""
     domain = Domain((0, 0, 0), (1, 1, 1), 32)
     spacing = domain.dx / 2
     material = ElasticMaterial(E=1e4, nu=0.3, density=1.0)

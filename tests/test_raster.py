@@ -1,4 +1,4 @@
-"""The C++ Gaussian rasterizer against its dense PyTorch twin (SPEC §6.1, issue 3)."""
+"""The C++ Gaussian rasterizer against its dense PyTorch twin (docs/formulas.md §11)."""
 from __future__ import annotations
 
 
@@ -7,7 +7,7 @@ import torch
 
 from fracture_gs.render import Camera, rasterize, rasterize_reference
 from kernel_devices import KERNEL_DEVICES
-from test_raster_scenes import make_camera, random_scene, split
+from raster_scenes import make_camera, random_scene, split
 
 needs_cpp = pytest.mark.extension("raster_forward")  # tests/conftest.py: skipped without _C, failed in CI
 BACKENDS = [pytest.param("cpp", marks=needs_cpp), "reference"]

@@ -1,7 +1,7 @@
 """Outside anchors for the rasterizer: pixel values computed by hand from the 3DGS rules.
 
 The other raster tests compare the C++ kernels with the torch twin; if both shared a wrong
-rule they would agree. Here every expected number comes from the formulas of SPEC §6.1 / 3DGS
+rule they would agree. Here every expected number comes from the formulas of docs/formulas.md §11 / 3DGS
 (Kerbl et al. 2023) written out in the test, never from ``fracture_gs.render.reference``:
 
 * a camera-space point (x, y, z) lands on (fx x/z + cx, fy y/z + cy); pixel (i, j) has its

@@ -1,5 +1,5 @@
 """Fitting with the C++ rasterizer: optimising colours, opacities and scales of 5k Gaussians
-to an image rendered from a different random scene lowers the L1 loss by >= 80 % (issue 3)."""
+to an image rendered from a different random scene lowers the L1 loss by >= 80 %."""
 from __future__ import annotations
 
 import pytest

@@ -134,7 +134,7 @@ def test_train_and_test_views_are_the_dataset_cameras_moved_with_the_object(tmp_
 
 def test_frames_read_fragment_ids_when_present(three_frames: Simulation):
     sim = three_frames
-    assert sim.load_frame(0).fragment_id is None          # runs before issue 14 have none
+    assert sim.load_frame(0).fragment_id is None          # runs without fragment_id have none
     path = sim.frame_path(1)
     with np.load(path) as data:
         arrays = dict(data)

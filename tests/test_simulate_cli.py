@@ -205,7 +205,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
         assert frame["alpha"].shape == (n,) and frame["fractured"].dtype == np.bool_
         assert frame["damage"].shape == (n,) and frame["damage"].dtype == np.float32
         assert all(np.isfinite(frame[k]).all() for k in ("x", "v", "F_E", "alpha"))
-        # issue 14: the connected piece of every particle; the two objects never share one
+        # the connected piece of every particle; the two objects never share one
         assert frame["fragment_id"].shape == (n,) and frame["fragment_id"].dtype == np.int32
         assert not set(frame["fragment_id"][obj == 0]) & set(frame["fragment_id"][obj == 1])
     with open(out / "diagnostics.csv") as handle:

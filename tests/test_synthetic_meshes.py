@@ -108,7 +108,7 @@ def test_parts_assigned_as_designed(objects):
 @pytest.mark.parametrize("name", ["table", "ficus"])
 def test_part_rules_survive_a_reconstruction_sized_surface_error(objects, name):
     """train.py assigns part_id from parts.json at reconstructed positions, a few millimetres off
-    the true surface (issue 10 asks >= 99 % agreement with the part at the nearest true surface
+    the true surface (the aim is >= 99 % agreement with the part at the nearest true surface
     point). A rule plane lying on a large face (the table's underside) flips that whole face;
     the planes sit in thin sections instead, so moving every surface point 5 mm (natural units)
     along its normal, in or out, changes almost no label."""

@@ -1,5 +1,5 @@
 """train.py end to end on the shipped fixture (5 views, 96x96), --from-ply, checkpoints and
-every bad input of issue 10; render.py -m on the result. Tiny settings: seconds, not minutes."""
+every bad input; render.py -m on the result. Tiny settings: seconds, not minutes."""
 from __future__ import annotations
 
 import ast

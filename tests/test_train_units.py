@@ -1,4 +1,4 @@
-"""Unit checks of the reconstruction stages (issue 10): grid interpolation, visual hull,
+"""Unit checks of the reconstruction stages: grid interpolation, visual hull,
 NeuS opacity, meshing, particle sampling and volumes, image metrics."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-// Per-pixel math of the rasterizer (SPEC §6.1), shared by the CPU and CUDA kernels: the
+// Per-pixel math of the rasterizer (docs/formulas.md §11), shared by the CPU and CUDA kernels: the
 // layout of a projected Gaussian, alpha of one Gaussian at one pixel centre, and the exact
 // derivative of that alpha w.r.t. the Gaussian's 2D mean, conic and opacity.
 #pragma once

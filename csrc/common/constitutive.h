@@ -49,8 +49,8 @@ enum MaterialModel : int { kModelElastic = 0, kModelNacc = 1, kModelBrittle = 2 
 constexpr double kMinSingularValue = 1e-4;  // sigma clamp of the Hencky strain
 constexpr double kNaccP0Floor = 1e-5;       // p0 = K (1e-5 + sinh(xi max(-alpha, 0)))
 // y > kNaccYieldTol (M p0)^2 triggers the projection: relative to the ellipse's own size, so a
-// particle with p0 at its floor 1e-5 K is still projected and hardened. (SPEC 5.3 wrote 1e-8 K^2
-// and gated hardening on p0 > 1e-4 K: both absolute, and material failing in shear then stopped
+// particle with p0 at its floor 1e-5 K is still projected and hardened. (An absolute 1e-8 K^2
+// with hardening gated on p0 > 1e-4 K would stop material failing in shear
 // at alpha ~ -9e-5 / xi, short of the fracture threshold 0. ziran gates on 1e-4 Pa, which is
 // below our floor for any K > 10 Pa.) Hardening is gated relative to p0 only: -beta p0 < p < p0.
 constexpr double kNaccYieldTol = 1e-6;
@@ -228,7 +228,7 @@ HOST_DEVICE inline void elastic_update(const float* mat_row, float F[9], float* 
   kirchhoff_stress(mat_row, F, tau);
 }
 
-// NACC return map (SPEC §5.3). On entry F = F_trial, on exit F = F_E; alpha updated;
+// NACC return map (docs/formulas.md §4). On entry F = F_trial, on exit F = F_E; alpha updated;
 // tau = Kirchhoff stress of F_E.
 HOST_DEVICE inline void nacc_update(const float* mat_row, float F[9], float* alpha, float tau[9]) {
   using constitutive_detail::hencky;

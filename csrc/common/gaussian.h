@@ -1,4 +1,4 @@
-// Per-Gaussian math of the rasterizer (SPEC §6.1), shared by the CPU and CUDA kernels:
+// Per-Gaussian math of the rasterizer (docs/formulas.md §11), shared by the CPU and CUDA kernels:
 // covariance from scale + quaternion, EWA projection to the image plane, conic, screen
 // support, and the exact derivatives of each step. Every function works on one Gaussian.
 #pragma once

@@ -1,4 +1,4 @@
-// MLS-MPM math shared by the CPU and CUDA kernels (SPEC §5.2, §5.4, §5.5).
+// MLS-MPM math shared by the CPU and CUDA kernels (docs/formulas.md §2, §7, §9).
 //
 // Grid layout: nodes are stored block-major. A block is 4x4x4 nodes (64 consecutive floats);
 // blocks are ordered x-major: block = (bi * by + bj) * bz + bk. The linear node index is
@@ -78,13 +78,13 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
 }
 
 // ---------------------------------------------------------------------------------------------
-// Contact between two velocity fields at one grid node (SPEC §5.4). Each field is a body (an
-// object grid in collision mode; issue 14 reuses this for the two sides of a crack inside one
+// Contact between two velocity fields at one grid node (docs/formulas.md §7). Each field is a body (an
+// object grid in collision mode; crack opening reuses this for the two sides of a crack inside one
 // object) and brings, at the node: its mass, velocity, mass gradient g = sum m_p grad w (points
 // out of the body) and position moment s = sum w m_p (x_p - x_i) (s / m: the body's mass centre
 // seen from the node).
 //
-// Detection (deviation from SPEC §5.4, see docs/design_mpm.md): the bodies are in contact at the
+// Detection (docs/design_mpm.md, Contact detection): the bodies are in contact at the
 // node only where their mass centres, taken along the normal, are closer than max_gap:
 //     (s_b / m_b - s_a / m_a) . n < max_gap          (Lemiale et al. 2010, Nairn 2013)
 // Touching thick bodies give about 0.81-0.9 dx there (a half-space's mass centre lies ~0.4 dx
@@ -93,7 +93,7 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
 // V_b >= 0.75 dx^3) never fired for thin or surface-only bodies, which then passed through each
 // other.
 //
-// Normal: SPEC §5.4's normalize(g_a / |g_a| - g_b / |g_b|) needs both unit gradients to be the
+// Normal: The averaged normal normalize(g_a / |g_a| - g_b / |g_b|) needs both unit gradients to be the
 // bodies' surface normals, which fails for a one-layer sheet (a shard) at two kinds of nodes, and
 // there the other body's unit gradient alone is the normal:
 //  * nodes inside a body's mass, where its mass centre lies within `inside` (0.4 dx) of the node
@@ -105,7 +105,7 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
 //    gradients then cancels, and those nodes, whose velocities the sheet's particles also gather,
 //    carried no contact at all.
 // Elsewhere (both bodies outside each other's mass, each gradient facing the other body, as for
-// thick bodies and their corners) the normal is SPEC's, so the gap check still rejects the tilted
+// thick bodies and their corners) the normal is the averaged one, so the gap check still rejects the tilted
 // normals at a sliding block's corners.
 struct ContactParams {
   float strength;  // s = contact.strength, 0 <= s <= 2
@@ -169,7 +169,7 @@ HOST_DEVICE inline bool contact_normal(const ContactSide& a, const ContactSide& 
   return true;
 }
 
-// The impulse of SPEC §5.4 (Bardenhagen's centre-of-mass form) along the unit normal n: applied
+// The impulse of docs/formulas.md §7 (Bardenhagen's centre-of-mass form) along the unit normal n: applied
 // only while the fields approach, dp_a = -s j_n n - friction, dp_b = -dp_a (momentum is conserved
 // at the node). Friction: j_t = min(mu_f s j_n, m_r |v_t|) against the tangential relative
 // velocity. Returns true if an impulse was applied.
@@ -227,7 +227,7 @@ HOST_DEVICE inline void contact_node(long long node, long long nodes, int n_grid
   }
 }
 
-// Boundary settings shared by the kernels (SPEC §5.5).
+// Boundary settings shared by the kernels (docs/formulas.md §9).
 enum WallCondition { kWallNone = 0, kWallSlip = 1, kWallSticky = 2, kWallSeparate = 3 };
 
 struct BoundaryParams {

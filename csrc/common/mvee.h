@@ -1,4 +1,4 @@
-// FPGO geometry shared by the CPU and CUDA kernels (SPEC §6.3, paper App. A.4).
+// FPGO geometry shared by the CPU and CUDA kernels (docs/formulas.md §13, paper App. A.4).
 //
 // lens_ellipsoid: the ellipsoid that stands in for the overlap ("lens") of two spheres
 // (C_i, r_i), (C_j, r_j), d = |C_j - C_i|, u = (C_j - C_i) / d:

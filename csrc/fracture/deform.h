@@ -1,4 +1,4 @@
-// Gaussians that follow particles (SPEC §6.2), one Gaussian at a time; shared by the CPU and
+// Gaussians that follow particles (docs/formulas.md §12), one Gaussian at a time; shared by the CPU and
 // CUDA kernels of fracture_kernels.h.
 //
 // A Gaussian driven by particle p with elastic deformation gradient F = F_E[p]:

@@ -111,7 +111,7 @@ void register_fracture(pybind11::module& m) {
   m.def("fracture_deform_gaussians", &deform_gaussians,
         "Gaussians that follow their particles: F x offset, F Σ0 Fᵀ, polar rotation (fracture_gs/fracture/ops.py)");
   m.def("fracture_lens_ellipsoids", &lens_ellipsoids,
-        "FPGO: ellipsoids of the overlaps of sphere pairs, SPEC §6.3 (fracture_gs/fracture/ops.py)");
+        "FPGO: ellipsoids of the overlaps of sphere pairs, docs/formulas.md §13 (fracture_gs/fracture/ops.py)");
 }
 
 }  // namespace fgs

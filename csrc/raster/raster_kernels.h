@@ -1,4 +1,4 @@
-// Framework-free interface of the Gaussian rasterizer kernels (SPEC §6.1). Raw pointers,
+// Framework-free interface of the Gaussian rasterizer kernels (docs/formulas.md §11). Raw pointers,
 // row-major, float32. The binding (raster_bind.cpp) allocates every buffer and runs the
 // phases in order:
 //   1. preprocess: project each Gaussian, colour it, find its tile rectangle; writes the
@@ -21,8 +21,8 @@
 namespace fgs {
 namespace raster {
 
-// Which Gaussians may blend at a pixel besides the 3DGS rules (SPEC §6.1 'exclusive').
-// * flags (global rule, the SPEC's bool): of all Gaussians flagged 1, only the nearest one with
+// Which Gaussians may blend at a pixel besides the 3DGS rules (docs/formulas.md §11, exclusive Gaussians).
+// * flags (global rule, a bool per Gaussian): of all Gaussians flagged 1, only the nearest one with
 //   alpha >= 1/255 blends at a pixel.
 // * next (group rule, paper §3.2.2: the lenses that replace one g_i): next[i] is the next
 //   member of i's group in a ring (i itself for a group of one), -1 for Gaussians in no group;

@@ -56,7 +56,7 @@ class Profile:
 
 
 PROFILES = {
-    # 14.7 min on the idle 2-core CPU, 13 of them simulating (README, Demo); --quick 1.5 min.
+    # Measured times of each profile: docs/results.md, The demo.
     "default": Profile("default", 200, 60, 8, 16, 128,
                        ("--sdf-res", "64", "--sdf-iters", "200", "--iterations", "800",
                         "--n-surface", "12000", "--nv", "8", "--particle-res", "24"),
@@ -132,7 +132,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
         "name": name if mode == "collision" else f"{name}_mls",
         "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid},
         "frames": frames, "frame_dt": frame_dt, "gravity": [0, 0, -9.8],
-        # Ours opens cracks inside objects (issue 14), so the torn table top comes apart instead of
+        # Ours opens cracks inside objects, so the torn table top comes apart instead of
         # hanging together by the grid; the mls baseline (PhysGaussian / GIC style) has no such thing.
         "contact": {"mode": mode, "strength": 1.0, "friction": 0.1, "fragments": mode == "collision"},
         "cfl": 0.3,
@@ -192,7 +192,7 @@ def _require_success(function: Callable[[], int], what: str) -> None:
 
 def _dataset_mismatch(folder: Path, profile: Profile) -> str:
     """'' when the dataset in ``folder`` was made with the profile's image size and view counts
-    (its generator.json), else a note of how it differs: the demo's figures in the README are for
+    (its generator.json), else a note of how it differs: the demo's figures in docs/results.md are for
     datasets the demo made itself, and a larger one trains a different model."""
     from fracture_gs.data.synthetic.generator import GENERATOR_FILE
 
@@ -200,13 +200,13 @@ def _dataset_mismatch(folder: Path, profile: Profile) -> str:
         made = json.loads((folder / GENERATOR_FILE).read_text())["settings"]
         found = (made["width"], made["height"], made["n_train"], made["n_test"])
     except (OSError, ValueError, KeyError, TypeError):
-        return " (no generator.json: not made by the generator, so the results will differ from the README's)"
+        return " (no generator.json: not made by the generator, so the results will differ from docs/results.md)"
     wanted = (profile.image_size, profile.image_size, profile.n_train, profile.n_test)
     if found == wanted:
         return ""
     return (f" (made at {found[0]}x{found[1]} with {found[2]} + {found[3]} views, not the profile's "
-            f"{wanted[0]}x{wanted[1]} with {wanted[2]} + {wanted[3]}: the results will differ from the "
-            f"README's; --data DIR or --force makes the profile's)")
+            f"{wanted[0]}x{wanted[1]} with {wanted[2]} + {wanted[3]}: the results will differ from "
+            f"docs/results.md; --data DIR or --force makes the profile's)")
 
 
 def stage_data(demo: Demo) -> None:

@@ -1,4 +1,4 @@
-"""``evaluate.py``: metrics of simulations, trained models and the paper's experiments (SPEC §7).
+"""``evaluate.py``: metrics of simulations, trained models and the paper's experiments (docs/formulas.md §14).
 
 * ``evaluate.py --sim output/sims/<name>`` — fracture onset, reference frame, window and the
   self-referenced PSNR / LPIPS / FID of the run rendered with FPGO (``--no-fpgo``: without;

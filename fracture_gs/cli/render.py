@@ -1,4 +1,4 @@
-"""``render.py``: a simulation's frames as Gaussian splats, with FPGO (SPEC §6.2–6.3).
+"""``render.py``: a simulation's frames as Gaussian splats, with FPGO (docs/formulas.md §12–§13).
 
 ``render.py --sim output/sims/<name>`` renders every frame from every view into
 ``<sim>/renders/`` (``renders_nofpgo/`` with ``--no-fpgo``): ``<view>/00000.png``,
@@ -122,7 +122,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--exclusive", choices=EXCLUSIVE_RULES, default=defaults.exclusive,
                         help="FPGO lens Gaussians at a pixel: 'group' (default, paper §3.2.2) "
                         "only the nearest of the lenses that replace one fractured particle's "
-                        "Gaussian blends; 'all' only the nearest of all lenses (SPEC §6.1's "
+                        "Gaussian blends; 'all' only the nearest of all lenses (docs/formulas.md §11's "
                         "global rule); 'none' they blend like all others")
     parser.add_argument("--no-exclusive", dest="exclusive", action="store_const", const="none",
                         help="same as --exclusive none")
@@ -138,7 +138,7 @@ def add_interior_options(parser: argparse.ArgumentParser) -> None:
                         help="FPGO Gaussians for fractured interior particles: 'exposed' "
                         "(default) only on fracture surfaces, where they kept fewer than "
                         "--exposure of their rest neighbours (paper App. A.6); 'all' every "
-                        "fractured one (SPEC §6.3 step 4 as written)")
+                        "fractured one")
     parser.add_argument("--exposure", type=float, default=defaults.exposure,
                         help=f"FPGO exposure test: share of the rest neighbours within d_c "
                         f"below which a particle is on a fracture surface (default "
@@ -348,7 +348,7 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
 
 
 def _render_model(argv: list[str]) -> int:
-    """``render.py -m <model> ...``: static renders of a trained model (issue 10's module)."""
+    """``render.py -m <model> ...``: static renders of a trained model."""
     if "--sim" in argv or any(a.startswith("--sim=") for a in argv):
         print("error: give either --sim (a simulation) or -m (a trained model), not both",
               file=sys.stderr)

@@ -1,4 +1,4 @@
-"""``simulate.py``: run a scene through the Collision-MPM solver (SPEC §5).
+"""``simulate.py``: run a scene through the Collision-MPM solver (docs/formulas.md §2–§10).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: <key path or file>: <problem>``
 line on stderr, nothing simulated: bad scene keys, unreadable files, a grid too large for the
@@ -64,7 +64,7 @@ class InvalidInput(ValueError):
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="simulate.py", description="Run a Collision-MPM fracture simulation of a scene.")
-    parser.add_argument("--scene", required=True, help="scene YAML (SPEC §5.1)")
+    parser.add_argument("--scene", required=True, help="scene YAML (docs/scenes.md)")
     parser.add_argument("--out", default=None,
                         help="output folder (default: output/sims/<scene name>)")
     parser.add_argument("--frames", type=int, default=None,

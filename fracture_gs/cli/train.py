@@ -1,4 +1,4 @@
-"""``train.py``: reconstruct an object from posed, masked images (SPEC §4, issue 10).
+"""``train.py``: reconstruct an object from posed, masked images (docs/training.md).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line on stderr naming the
 file or flag, nothing left half-written in the model folder), 130 when interrupted (the last

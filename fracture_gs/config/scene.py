@@ -1,4 +1,4 @@
-"""Scene YAML (SPEC §5.1) → validated, typed :class:`SceneConfig` with every default filled in.
+"""Scene YAML (docs/scenes.md) → validated, typed :class:`SceneConfig` with every default filled in.
 
 Every key is checked before anything runs: types, ranges, unknown keys (typos), mutually
 exclusive keys and referenced files. A problem raises :class:`SceneError`, whose message names
@@ -54,14 +54,14 @@ BOX_CONDITIONS = ("slip", "sticky", "separate")
 SHAPES = ("box", "sphere", "cylinder")
 PARTICLES_FILE = "particles.ply"
 
-# Defaults of optional keys (the paper's values where it gives them, Table 1 / SPEC §5.1).
+# Defaults of optional keys (the paper's values where it gives them, Table 1; docs/scenes.md).
 DEFAULT_FRAMES = 100
 DEFAULT_FRAME_DT = 1.0 / 60.0
 DEFAULT_GRAVITY = (0.0, 0.0, -9.8)
 DEFAULT_CFL = 0.3
 DEFAULT_PARTICLES_PER_CELL = 8
 DEFAULT_GROUND_FRICTION = 0.5
-DEFAULT_FRAGMENTS = False  # contact.fragments (crack opening inside objects, issue 14)
+DEFAULT_FRAGMENTS = False  # contact.fragments (crack opening inside objects, docs/formulas.md §8)
 
 
 # ----------------------------------------------------------------------------- dataclasses
@@ -85,7 +85,7 @@ class ContactConfig:
     mode: Literal["collision", "mls"] = "collision"
     strength: float = 1.0
     friction: float = 0.0
-    # Crack opening inside an object (issue 14); false: one grid field per object (the paper).
+    # Crack opening inside an object (docs/formulas.md §8); false: one grid field per object (the paper).
     fragments: bool = DEFAULT_FRAGMENTS
 
 

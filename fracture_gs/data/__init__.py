@@ -1,4 +1,4 @@
-"""Dataset loaders (SPEC §3): Blender/NeRF-synthetic, COLMAP and DTU/IDR/NeuS scenes become a
+"""Dataset loaders (docs/file_formats.md §1): Blender/NeRF-synthetic, COLMAP and DTU/IDR/NeuS scenes become a
 :class:`Dataset` of OpenCV-convention :class:`~fracture_gs.render.camera.Camera` objects,
 images, optional masks and (COLMAP) sparse points."""
 from fracture_gs.data.blender import load_blender

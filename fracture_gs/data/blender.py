@@ -1,4 +1,4 @@
-"""Blender / NeRF-synthetic loader: ``transforms_{train,test}.json`` + RGBA PNGs (SPEC §3)."""
+"""Blender / NeRF-synthetic loader: ``transforms_{train,test}.json`` + RGBA PNGs (docs/file_formats.md §1)."""
 from __future__ import annotations
 
 import math

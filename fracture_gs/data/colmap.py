@@ -1,4 +1,4 @@
-"""COLMAP loader: ``sparse/0/{cameras,images,points3D}.{bin,txt}`` + ``images/`` (SPEC §3)."""
+"""COLMAP loader: ``sparse/0/{cameras,images,points3D}.{bin,txt}`` + ``images/`` (docs/file_formats.md §1)."""
 from __future__ import annotations
 
 import os

@@ -1,4 +1,4 @@
-"""The in-memory result of every dataset loader (SPEC §3)."""
+"""The in-memory result of every dataset loader (docs/file_formats.md §1)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -15,7 +15,7 @@ class DatasetError(ValueError):
 
 @dataclass
 class Dataset:
-    """Posed images of one scene, with every camera in the OpenCV convention of SPEC §6.1.
+    """Posed images of one scene, with every camera in the OpenCV convention of docs/formulas.md §1.
 
     Attributes:
         cameras: one :class:`Camera` per image (world-to-camera, fx fy cx cy, size).

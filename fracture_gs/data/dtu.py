@@ -1,4 +1,4 @@
-"""DTU / IDR / NeuS loader: ``cameras_sphere.npz`` + ``image/`` + ``mask/`` (SPEC §3)."""
+"""DTU / IDR / NeuS loader: ``cameras_sphere.npz`` + ``image/`` + ``mask/`` (docs/file_formats.md §1)."""
 from __future__ import annotations
 
 import os

@@ -1,4 +1,4 @@
-"""Part specs: which part (material) a point of an object belongs to (SPEC §4 "Parts").
+"""Part specs: which part (material) a point of an object belongs to (docs/file_formats.md §1, parts.json).
 
 A part spec lives in ``parts.json`` next to a dataset (or is embedded in a scene). It is a list
 of rules in object coordinates; a point gets the part of the **first** rule that contains it,
@@ -29,7 +29,7 @@ import numpy as np
 
 from fracture_gs.data.files import read_json
 
-PART_SPEC_FORMAT = "fracture_gs/parts-v1"
+PARTS_FORMAT = "fracture_gs/parts-v1"
 
 
 class PartSpecError(ValueError):
@@ -86,7 +86,7 @@ class PartSpec:
         return len(self.part_names)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"format": PART_SPEC_FORMAT,
+        return {"format": PARTS_FORMAT,
                 "parts": [{"id": index, "name": name}
                           for index, name in enumerate(self.part_names)],
                 "default_part": self.default_part,
@@ -152,8 +152,8 @@ def part_spec_from_dict(content: Mapping[str, Any], source: str = "parts") -> Pa
     """Validate and convert the JSON form of a part spec; errors name ``source`` and the key."""
     if not isinstance(content, Mapping):
         raise PartSpecError(f"{source}: expected a JSON object at the top level")
-    if content.get("format", PART_SPEC_FORMAT) != PART_SPEC_FORMAT:
-        raise PartSpecError(f"{source}: format {content['format']!r} is not {PART_SPEC_FORMAT!r}")
+    if content.get("format", PARTS_FORMAT) != PARTS_FORMAT:
+        raise PartSpecError(f"{source}: format {content['format']!r} is not {PARTS_FORMAT!r}")
     parts = content.get("parts")
     if not isinstance(parts, list) or not parts:
         raise PartSpecError(f"{source}: 'parts' must be a non-empty list")

@@ -1,4 +1,4 @@
-"""Self-referenced fracture metrics of simulations (SPEC §7, paper App. A.3).
+"""Self-referenced fracture metrics of simulations (docs/formulas.md §14, paper App. A.3).
 
 For one *run* (a simulation folder rendered with or without FPGO): find the fracture onset
 (``metrics.onset``), render the reference frame and the window frames from every view with the

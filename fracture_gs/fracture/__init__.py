@@ -1,4 +1,4 @@
-"""Fracture-aware rendering: FPGO (paper §3.2.2, SPEC §6.3) and the spatial ops it runs on.
+"""Fracture-aware rendering: FPGO (paper §3.2.2, docs/formulas.md §13) and the spatial ops it runs on.
 
 ``connected_components(x, radius)`` (fragment labels) and ``knn_within`` are general-purpose
 ops on a uniform hash grid; ``lens_ellipsoids`` is the MVEE of App. A.4; ``apply_fpgo`` turns a

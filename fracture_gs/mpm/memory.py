@@ -40,7 +40,7 @@ def grid_memory_bytes(config: SceneConfig) -> tuple[int, int, int]:
     grids counts the fields: two per object grid)."""
     collision = config.contact.mode == "collision"
     n_grids = len(config.objects) if collision else 1
-    fragments = config.contact.fragments  # a second field per grid (issue 14), as the solver allocates
+    fragments = config.contact.fragments  # a second field per grid, as the solver allocates
     geometry = GridGeometry.from_domain(solver_domain(config), 2 * n_grids if fragments else n_grids)
     fields = GridFields.zeros(geometry, torch.device("meta"),
                               with_contact=collision and n_grids >= 2, with_fragments=fragments)

@@ -59,7 +59,7 @@ def grid_update(bins: ParticleBins, geometry: GridGeometry, dt: float, gravity: 
 
 def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, ground_height: float | None,
                ground_friction: float, mass_eps: float, grid: GridFields, backend: str = "auto") -> None:
-    """Domain walls and ground (SPEC §5.5)."""
+    """Domain walls and ground (docs/formulas.md §9)."""
     if use_compiled(grid.mass.device, backend):
         compiled_module().mpm_boundaries(
             bins.touched, *geometry.args(), WALL_CONDITIONS[wall_condition], 3, list(geometry.cells),
@@ -71,7 +71,7 @@ def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, 
 
 def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, friction: float, mass_eps: float,
               max_gap: float, grid: GridFields, backend: str = "auto") -> None:
-    """Contact impulses between object grids (SPEC §5.4) where the bodies' mass centres at a node are
+    """Contact impulses between object grids (docs/formulas.md §7) where the bodies' mass centres at a node are
     closer than ``max_gap`` (a length) along the contact normal. A body whose mass centre lies within
     ``CONTACT_INSIDE_CELLS`` of a node gives no normal there (the other body's is used)."""
     inside = CONTACT_INSIDE_CELLS * geometry.dx

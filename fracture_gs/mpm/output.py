@@ -55,7 +55,7 @@ def frame_file_name(frame: int) -> str:
 
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
-    """CSV header: the SPEC §5.6 columns, then ``<name>_px, _py, _pz, _kinetic`` per object, then
+    """CSV header: the columns of docs/file_formats.md §4, then ``<name>_px, _py, _pz, _kinetic`` per object, then
     ``fragments`` (pieces with >= 1 % of their object's particles), ``impulse_x, _y, _z`` (the
     impulse gravity and the boundaries gave since frame 0: p − p(0) equals it up to round-off) and
     ``fracture_energy`` (the energy brittle damage has taken since frame 0: kinetic + elastic +

@@ -1,4 +1,4 @@
-"""Readable, vectorised PyTorch twins of the MPM kernels (SPEC §5.2, §5.4, §5.5).
+"""Readable, vectorised PyTorch twins of the MPM kernels (docs/formulas.md §2, §7, §9).
 
 Each function mirrors one compiled op in ``csrc/mpm`` and has the same inputs and outputs.
 They work on any device and run the whole dense grid, so they are slow but easy to check;
@@ -269,7 +269,7 @@ def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, gr
 
 def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, max_gap: float,
               inside: float) -> None:
-    """Bardenhagen contact between every pair of object grids, pairs in a fixed order (SPEC §5.4).
+    """Bardenhagen contact between every pair of object grids, pairs in a fixed order (docs/formulas.md §7).
 
     A node is a contact only where both bodies have mass, the normal is defined and the bodies'
     mass centres at the node, s_k / m_k, are closer than ``max_gap`` along it (a length); the

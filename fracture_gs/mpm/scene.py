@@ -1,4 +1,4 @@
-"""SceneConfig → particles, material table and solver settings (SPEC §5.1, §4).
+"""SceneConfig → particles, material table and solver settings (docs/scenes.md, docs/file_formats.md §2).
 
 Objects come either from an analytic primitive (box / sphere / cylinder), sampled
 jittered-uniformly with ``particles_per_cell`` particles per grid cell, or from a particles
@@ -145,7 +145,7 @@ def sample_primitive(primitive: PrimitiveConfig, dx: float, scale: float,
 
 
 def load_particles_ply(path: str | Path, key_path: str = "model") -> ObjectParticles:
-    """Read a ``particles.ply`` (SPEC §4): x y z volume [is_surface part_id gaussian_index].
+    """Read a ``particles.ply`` (docs/file_formats.md §2): x y z volume [is_surface part_id gaussian_index].
 
     Missing optional properties default to not-surface, part 0 and no Gaussian (-1).
     """

@@ -1,6 +1,6 @@
 """Collision-MPM solver: MLS-MPM with per-object grids and momentum-conserving contact.
 
-One substep (SPEC §5.2–5.5):
+One substep (docs/formulas.md §2–§9):
     bins → P2G (per object grid) → [fragments: damage gradients, split nodes, fields A/B] →
     grid update (+gravity) → contact pass → boundaries → G2P (+ return map, fracture flag)
 The state is only replaced once the new one is finite and plausible, so a blow-up never
@@ -81,7 +81,7 @@ class CollisionMPM:
         self.geometry = GridGeometry.from_domain(domain, self.n_grids)
         self.grid_id = self._grid_ids(self.particles)
         self.use_contact = collision_mode and self.n_grids >= 2
-        # Fragments (issue 14): each grid g gets a second field, grid n_grids + g, for the other
+        # Fragments (docs/formulas.md §8): each grid g gets a second field, grid n_grids + g, for the other
         # side of a crack; the field kernels then run on all 2 n_grids grids.
         self.fragments = bool(self.contact.fragments)
         self.field_geometry = (dataclasses.replace(self.geometry, n_grids=2 * self.n_grids) if self.fragments

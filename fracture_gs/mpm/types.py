@@ -1,4 +1,4 @@
-"""Plain data types of the Collision-MPM solver (SPEC §5): particles, state, domain, settings."""
+"""Plain data types of the Collision-MPM solver (docs/formulas.md §2–§10): particles, state, domain, settings."""
 from __future__ import annotations
 
 import math
@@ -58,9 +58,9 @@ class ContactSettings:
     # Contact detection, in cells: a node is a contact only where the two bodies' mass centres seen
     # from it are closer than this along the normal (touching solid bodies: 0.81-0.9 dx; touching
     # one-layer sheets: their particle spacing). math.inf: every node where both bodies have mass
-    # (SPEC §5.4 as written, which acts across a gap; kept to measure that).
+    # (no detection test, which acts across a gap; kept to measure that).
     max_gap: float = CONTACT_GAP_CELLS
-    # Crack opening inside an object (issue 14): each object grid is split into two fields along
+    # Crack opening inside an object (docs/formulas.md §8): each object grid is split into two fields along
     # the damage gradient, which meet through the same contact impulse. False: one field per
     # object (the paper's behaviour, kept for the ablation).
     fragments: bool = DEFAULT_FRAGMENTS

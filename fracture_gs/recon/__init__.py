@@ -1,2 +1,2 @@
-"""Reconstruction (train.py, SPEC §4): visual hull → photometric SDF refinement → mesh →
+"""Reconstruction (train.py, docs/training.md): visual hull → photometric SDF refinement → mesh →
 particles → isotropic Gaussians, and the model folder they are written to."""

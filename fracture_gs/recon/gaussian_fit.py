@@ -11,7 +11,7 @@ moved positions become the particles' positions. An isotropic Gaussian centred o
 surface reaches about one standard deviation (plus the rasterizer's 0.3 px² low-pass) past
 it, which bloats every silhouette; with a bound of one spacing the fit moves the Gaussians
 that far inwards and the silhouettes close up (teapot test PSNR 29.3 dB with a bound of
-0.25 spacing, 33.6 dB with 1; README "train.py").
+0.25 spacing, 33.6 dB with 1; docs/training.md shows the two renders).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Visual hull from object masks as a signed distance field (SPEC §4, first step of the SDF).
+"""Visual hull from object masks as a signed distance field (docs/training.md, Stages: the first step of the SDF).
 
 Each mask becomes a 2D signed distance map (pixels, positive outside the object, sub-pixel
 accurate from the anti-aliased alpha). A 3D point's hull distance is the largest of its

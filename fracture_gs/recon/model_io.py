@@ -1,4 +1,4 @@
-"""The ``-m`` model folder of train.py (3DGS-compatible, SPEC §4) and its files.
+"""The ``-m`` model folder of train.py (3DGS-compatible, docs/file_formats.md §2) and its files.
 
 Layout::
 
@@ -22,7 +22,6 @@ import ast
 import contextlib
 import csv
 import json
-import math
 import os
 import re
 import shutil
@@ -300,7 +299,3 @@ def checkpoints(model_path: str) -> list[tuple[int, str]]:
     found = [(int(m.group(1)), os.path.join(model_path, name))
              for name in os.listdir(model_path) if (m := CHECKPOINT_PATTERN.fullmatch(name))]
     return sorted(found)
-
-
-def finite_or_none(value: float) -> float | None:
-    return value if math.isfinite(value) else None

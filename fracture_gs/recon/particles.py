@@ -1,4 +1,4 @@
-"""Simulation particles of a reconstructed object (SPEC §4, paper App. A.2).
+"""Simulation particles of a reconstructed object (docs/formulas.md §15, paper App. A.2).
 
 * Surface particles: a maximal Poisson-disk set on the mesh. Many area-weighted candidate
   points get random priorities; a candidate is kept iff no kept candidate of higher priority

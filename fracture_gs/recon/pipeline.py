@@ -9,7 +9,6 @@ continues.
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -506,7 +505,3 @@ def _write_particles(folder: model_io.OutputFolder, particles: ParticleSet, part
         "note": "surface_spacing: Poisson-disk radius of the surface particles; "
                 "interior_particle_size: voxel / nv^(1/3), the mean spacing of interior "
                 "samples (a size for the Gaussians of fractured interior particles)"})
-
-
-def default_iteration_count(value: float) -> int:
-    return int(math.ceil(value))

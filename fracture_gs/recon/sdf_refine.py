@@ -1,4 +1,4 @@
-"""Photometric refinement of the grid SDF by NeuS-style volume rendering (SPEC §4).
+"""Photometric refinement of the grid SDF by NeuS-style volume rendering (docs/training.md).
 
 The SDF lives on the nodes of a :class:`VoxelGrid`; a point's value is the trilinear
 interpolant. Only the nodes inside the visual hull plus a margin of ``band_voxels`` are

@@ -1,4 +1,4 @@
-"""Pinhole camera in the OpenCV / gsplat convention (SPEC §6.1)."""
+"""Pinhole camera in the OpenCV / gsplat convention (docs/formulas.md §11)."""
 from __future__ import annotations
 
 import math

@@ -1,8 +1,8 @@
-"""The rasterizer's exclusive rules (SPEC §6.1 'exclusive', paper §3.2.2).
+"""The rasterizer's exclusive rules (docs/formulas.md §11, exclusive Gaussians; paper §3.2.2).
 
 ``exclusive`` given to ``rasterize`` is either
 
-* a bool (N,) tensor — the SPEC's **global rule**: of all flagged Gaussians only the nearest one
+* a bool (N,) tensor — the **global rule**: of all flagged Gaussians only the nearest one
   with alpha >= 1/255 blends at a pixel; or
 * an integer (N,) tensor of **group ids** — the paper's occlusion-aware sampling: Gaussians with
   the same id >= 0 (the lenses that replace one fractured particle's Gaussian) blend only their

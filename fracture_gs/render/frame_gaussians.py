@@ -18,12 +18,12 @@ spacing / 2 per surface particle, in a flat colour per object. Particles without
 an appearance interpolated from the nearest surface Gaussians (for FPGO).
 
 Per frame: Σ_t = F_E Σ₀ F_Eᵀ, mean = x + F_E · rest offset, SH looked up at (R R_obj)ᵀ·dir with
-R the polar rotation of F_E (SPEC §6.2) — compiled kernels — then optionally FPGO
+R the polar rotation of F_E (docs/formulas.md §12) — compiled kernels — then optionally FPGO
 (:mod:`fracture_gs.fracture.fpgo`).
 
 Frame PLY files follow the 3DGS layout: covariances become scale + rotation, SH are rotated
 into the world frame, and FPGO's exclusive group (id + 1, 0 for none) travels in the ``nx``
-column, ``ny`` = 1 when the SPEC's global rule applies (3DGS writes zeros there and no renderer
+column, ``ny`` = 1 when the global rule applies (3DGS writes zeros there and no renderer
 reads normals), so viewers that read fixed-size rows open it too.
 """
 from __future__ import annotations
@@ -79,7 +79,7 @@ class FrameGaussians:
     is_fpgo: torch.Tensor         # (M,) bool: made by FPGO (lens or interior Gaussian)
     particle: torch.Tensor        # (M,) int64
     stats: FPGOStats | None = None
-    exclusive_rule: str = "group"  # "group" or "all" (SPEC §6.1's global rule)
+    exclusive_rule: str = "group"  # "group" or "all" (the global rule of docs/formulas.md §11)
 
     def __len__(self) -> int:
         return int(self.means.shape[0])

@@ -1,4 +1,4 @@
-"""A ``train.py`` model folder as the renderer reads it (SPEC §4), and a writer for one.
+"""A ``train.py`` model folder as the renderer reads it (docs/training.md), and a writer for one.
 
 Layout: ``particles.ply`` (x y z volume is_surface part_id gaussian_index, model frame),
 ``point_cloud/iteration_N/point_cloud.ply`` (3DGS layout; the highest N counts), optionally

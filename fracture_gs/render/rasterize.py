@@ -124,12 +124,12 @@ def rasterize(means: torch.Tensor, opacities: torch.Tensor, camera: Camera, *,
               colors: torch.Tensor | None = None, background: torch.Tensor | None = None,
               exclusive: torch.Tensor | None = None, view_rotations: torch.Tensor | None = None,
               backend: str = "auto") -> dict[str, torch.Tensor]:
-    """Render 3D Gaussians with 3DGS semantics (SPEC §6.1); differentiable in every input.
+    """Render 3D Gaussians with 3DGS semantics (docs/formulas.md §11); differentiable in every input.
 
     means (N,3); opacities (N,) activated in [0, 1]; either scales (N,3) (activated, not
     log) + quats (N,4) (w x y z, normalised inside) or covariances (N,3,3); either sh
     (N,K,3), K = 1, 4, 9, 16 (colour = max(0, SH(dir) + 0.5)) or colors (N,3); background
-    (3,) (default black); exclusive (N,): bool flags (SPEC §6.1: at a pixel only the nearest
+    (3,) (default black); exclusive (N,): bool flags (docs/formulas.md §11: at a pixel only the nearest
     flagged Gaussian with alpha >= 1/255 is blended) or integer group ids (paper §3.2.2: only
     the nearest of each group id >= 0; see ``fracture_gs.render.exclusive``); view_rotations (N,3,3) R: SH uses Rᵀ·dir.
 

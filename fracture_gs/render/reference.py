@@ -1,4 +1,4 @@
-"""Readable, dense PyTorch twin of the Gaussian rasterizer (SPEC §6.1).
+"""Readable, dense PyTorch twin of the Gaussian rasterizer (docs/formulas.md §11).
 
 Every Gaussian is evaluated at every pixel (memory O(H·W·N): small images only), in the
 input dtype, with plain autograd for the backward. The semantics are the definition the

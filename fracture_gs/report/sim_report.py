@@ -40,7 +40,7 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
     sections: list[tuple[str, str]] = []
     rows = comparison_rows(runs) + (PAPER_ROWS if with_paper else [])
     body = table(COMPARISON_HEADER, rows)
-    body += ("\nSelf-referenced protocol (SPEC §7, paper App. A.3): every window frame of every "
+    body += ("\nSelf-referenced protocol (docs/formulas.md §14, paper App. A.3): every window frame of every "
              "view against that view's reference frame I_ref = t_f − 1; PSNR and LPIPS are means "
              f"over {len(runs[0]['views'])} views × window frames, FID is between the set of "
              "reference renders and the set of window renders. "

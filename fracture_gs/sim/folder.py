@@ -1,4 +1,4 @@
-"""Reading a simulation output folder (written by :mod:`fracture_gs.mpm.output`, SPEC §5.6).
+"""Reading a simulation output folder (written by :mod:`fracture_gs.mpm.output`, docs/file_formats.md §4).
 
 ```python
 sim = Simulation.open("output/sims/two_spheres")     # SimulationError: one line naming the file

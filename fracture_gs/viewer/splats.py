@@ -31,7 +31,7 @@ from fracture_gs.render.sh import SH_C0
 VIEWER_EXTENT = 100.0                      # the scene's bounding box diagonal in viewer units
 HIGHLIGHT_RGB = (1.0, 0.05, 0.75)          # fractured particles' Gaussians, on request
 # "colour by piece": the i-th largest fragment gets PIECE_PALETTE[i % 20] (matplotlib's tab20, as
-# benchmarks/fragment_strip.py draws them), fragments below 1 % of their object SMALL_PIECE_RGB.
+# tools/figures/fragment_strip.py draws them), fragments below 1 % of their object SMALL_PIECE_RGB.
 PIECE_PALETTE = np.asarray(matplotlib.colormaps["tab20"].colors, np.float64)
 SMALL_PIECE_RGB = (0.6, 0.6, 0.6)
 # "colour by damage": the brittle damage d in [0, 1] through matplotlib's inferno (black intact,

@@ -1,4 +1,4 @@
-"""The README's table of the brittle sphere drop, from the JSON of benchmarks/brittle_sphere.py.
+"""The table of the brittle sphere drop, from the JSON of benchmarks/brittle_sphere.py.
 
     python benchmarks/brittle_sphere.py --fracture-energy 2 > g2.json
     python benchmarks/brittle_sphere.py --fracture-energy 3.5 > g35.json
@@ -22,6 +22,21 @@ def cell(run: dict) -> str:
     return text
 
 
+def table(results: list[dict]) -> list[str]:
+    """The markdown lines of the table for the parsed JSON outputs ``results``."""
+    ratios = sorted({(run["stress_over_strength"], run["speed"]) for result in results for run in result["runs"]})
+    lines = ["| ρ c v / σ_F (speed) | " + " | ".join(f"{r:g} ({v:.2f} m/s)" for r, v in ratios) + " |",
+             "|---" * (len(ratios) + 1) + "|"]
+    for result in results:
+        for fragments in (True, False):
+            runs = {run["stress_over_strength"]: run for run in result["runs"] if run["fragments"] == fragments}
+            if not runs:
+                continue
+            label = f"G_f {result['material']['fracture_energy']:g} J/m², fragments {'on' if fragments else 'off'}"
+            lines.append(f"| {label} | " + " | ".join(cell(runs[r]) if r in runs else "—" for r, _ in ratios) + " |")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("json", type=Path, nargs="+", help="outputs of benchmarks/brittle_sphere.py")
@@ -30,17 +45,7 @@ def main() -> None:
         results = [json.loads(path.read_text()) for path in args.json]
     except (OSError, ValueError) as error:   # one line, not a traceback
         parser.exit(2, f"error: {error}\n")
-    ratios = sorted({(run["stress_over_strength"], run["speed"]) for result in results for run in result["runs"]})
-    print("| ρ c v / σ_F (speed) | " + " | ".join(f"{r:g} ({v:.2f} m/s)" for r, v in ratios) + " |")
-    print("|---" * (len(ratios) + 1) + "|")
-    for result in results:
-        for fragments in (True, False):
-            runs = {run["stress_over_strength"]: run for run in result["runs"] if run["fragments"] == fragments}
-            if not runs:
-                continue
-            label = f"G_f {result['material']['fracture_energy']:g} J/m², fragments {'on' if fragments else 'off'}"
-            print(f"| {label} | " + " | ".join(cell(runs[r]) if r in runs else "—" for r, _ in ratios) + " |")
-
+    print("\n".join(table(results)))
 
 if __name__ == "__main__":
     main()

@@ -1,7 +1,7 @@
-"""Synthetic multi-view datasets of the paper's objects (issue 4).
+"""Synthetic multi-view datasets of the paper's objects (docs/training.md, Synthetic datasets).
 
 ``python -m fracture_gs.data.synthetic --object {teapot,bowl,table,ficus,all} --out DIR``
-renders a Blender / NeRF-synthetic dataset (SPEC §3) with Mitsuba 3 (``scalar_rgb``; an
+renders a Blender / NeRF-synthetic dataset (docs/file_formats.md §1) with Mitsuba 3 (``scalar_rgb``; an
 optional dependency: ``pip install mitsuba==3.9.1``; nothing else in the package needs it).
 
 Objects (procedural, built as signed distance fields and meshed by marching cubes, so every

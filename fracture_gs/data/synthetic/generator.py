@@ -1,4 +1,4 @@
-"""Generate one synthetic multi-view dataset (Blender / NeRF-synthetic layout, SPEC §3).
+"""Generate one synthetic multi-view dataset (Blender / NeRF-synthetic layout, docs/file_formats.md §1).
 
 Output folder::
 

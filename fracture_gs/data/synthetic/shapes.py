@@ -156,7 +156,7 @@ TABLE_LEG_XY = np.array([0.52, 0.32])
 TABLE_TOP_UNDERSIDE = float(TABLE_TOP_CENTER[2] - TABLE_TOP_HALF[2])
 # The top/legs plane lies a quarter of the top's thickness below its underside, in the legs: a
 # plane on the underside itself would give every particle of that large face whichever part the
-# reconstruction's millimetre error puts it in (train.py's part_id check, issue 10), while the
+# reconstruction's millimetre error puts it in (train.py's part_id check), while the
 # legs cross it with a small section only.
 TABLE_PARTS_PLANE = TABLE_TOP_UNDERSIDE - 0.5 * float(TABLE_TOP_HALF[2])
 TABLE_PARTS = PartSpec(part_names=("top", "legs"), default_part=1, rules=(

@@ -1,6 +1,6 @@
-"""Where FPGO's parts gain or lose against the run without FPGO, pixel by pixel (issue 13, the ablation).
+"""Where FPGO's parts gain or lose against the run without FPGO, pixel by pixel (docs/results.md, The demo).
 
-The self-referenced protocol (SPEC §7) scores each window frame against the reference frame
+The self-referenced protocol (docs/formulas.md §14) scores each window frame against the reference frame
 I_ref = t_f − 1 of the same view. This script renders the reference and the window frames of
 ``--sim`` from ``--views`` orbit cameras, without FPGO and with each of FPGO's two parts alone
 (``benchmarks/fpgo_parts.py``: the lenses, ``fpgo_without_interior``; the interior Gaussians,
@@ -15,7 +15,7 @@ pixels of the reference. With ``--out PNG`` it also draws a grid: per (view, fra
 reference, the render without FPGO, each variant, and each variant's Δ map (red: worse than
 without FPGO, green: better; ±``--scale`` saturates).
 
-    PYTHONPATH=. python benchmarks/fpgo_error_maps.py --sim output/demo/sims/teapot_table \
+    python tools/figures/fpgo_error_maps.py --sim output/demo/sims/teapot_table \
         [--views 8] [--size 400] [--window 5] [--out docs/fpgo_error_maps.png] \
         [--show-views 0 3] [--show-frames 2 4 6]
 """
@@ -29,8 +29,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from fpgo_parts import add_window_arguments, frame_variants, open_window  # noqa: E402  (a sibling script)
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # the package and fpgo_parts.py
+from fpgo_parts import add_window_arguments, frame_variants, open_window  # noqa: E402  (benchmarks/fpgo_parts.py)
 
 from fracture_gs.fracture.fpgo import FPGOSettings  # noqa: E402
 from fracture_gs.render.frame_gaussians import SceneGaussians  # noqa: E402

@@ -2,7 +2,7 @@
 (system chromium + chromium-driver, WebGL on SwiftShader) opens it at one frame and the page is
 saved as a PNG (GUI panel included).
 
-Usage: PYTHONPATH=. python benchmarks/viewer_screenshot.py --sim output/sims/two_spheres \
+Usage: python tools/figures/viewer_screenshot.py --sim output/sims/two_spheres \
            --frame 10 --out docs/viewer.png [--size 1280 800] [--zoom 1.5] [--highlight] \
            [--pieces] [--no-fpgo]
 Prints one JSON line (what it wrote).
@@ -15,11 +15,14 @@ import sys
 import time
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the package and headless_browser.py
+
 import numpy as np
 import torch
 
 from fracture_gs.viewer.app import Viewer, ViewerOptions
-from fracture_gs.viewer.browser import HeadlessBrowser, find_chromium, wait_for
+from headless_browser import HeadlessBrowser, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
 
 
@@ -46,7 +49,7 @@ def main() -> int:
     parser.add_argument("--size", type=int, nargs=2, default=(1280, 800), metavar=("W", "H"))
     parser.add_argument("--highlight", action="store_true", help="fractured particles in magenta")
     parser.add_argument("--pieces", action="store_true",
-                        help="colour by piece (frames with fragment_id, simulated since issue 14)")
+                        help="colour by piece (frames with fragment_id, any recent simulate.py run)")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false")
     parser.add_argument("--zoom", type=float, default=1.0,
                         help="move the camera this many times closer than the initial view")

@@ -1,4 +1,4 @@
-"""How much of the generated bowl's volume is the recess under it, inside the foot ring (issue 10).
+"""How much of the generated bowl's volume is the recess under it, inside the foot ring.
 
 The bowl of ``python -m fracture_gs.data.synthetic --object bowl`` is a surface of revolution: a
 wall of constant thickness around a quarter-ellipse mid curve, standing on a foot ring. Inside
@@ -8,16 +8,20 @@ reconstruction that fills it overestimates the volume by the recess's share. Thi
 integrates the generator's own cross-section (``shapes.bowl_profile_sdf``) over an (r, z) grid
 and prints, as JSON, the bowl's and the recess's volumes and the recess's share of the bowl.
 
-Usage: PYTHONPATH=. python benchmarks/bowl_recess.py [--step 0.002]
+Usage: python tools/bowl_recess.py [--step 0.002]
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
 
-from fracture_gs.data.synthetic import shapes
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+
+from fracture_gs.data.synthetic import shapes  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

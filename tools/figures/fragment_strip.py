@@ -1,6 +1,6 @@
-"""Frame strip of a simulation with its particles coloured by fragment (issue 14 pictures).
+"""Frame strip of a simulation with its particles coloured by fragment (docs/simulation.md).
 
-    python benchmarks/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
+    python tools/figures/fragment_strip.py --sim output/sims/two_spheres --frames 0 6 12 23 \\
         --out docs/fragments_two_spheres.png [--title "two spheres"] [--view 20 -60]
 
 Reads ``frames/frame_NNNNN.npz`` of a ``simulate.py`` folder (which carry ``fragment_id``) and
@@ -11,8 +11,11 @@ line with the pieces per frame.
 from __future__ import annotations
 
 import argparse
+import sys
 import json
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root
 
 import matplotlib
 
@@ -55,7 +58,7 @@ def main() -> None:
     except (OutputError, OSError, KeyError, ValueError) as error:   # one line, not a traceback
         parser.exit(2, f"error: {error}\n")
     if any("fragment_id" not in frame for frame in frames):
-        parser.exit(2, f"error: {args.sim}: frames have no fragment_id (simulated before issue 14?)\n")
+        parser.exit(2, f"error: {args.sim}: frames have no fragment_id (simulated without fragment ids?)\n")
     everything = np.concatenate([frame["x"] for frame in frames])
     lower, upper = everything.min(0), everything.max(0)
     centre, half = (lower + upper) / 2, (upper - lower).max() / 2 * 1.05

@@ -1,6 +1,6 @@
 """A stand-in for a ``train.py`` model folder, built from a dataset's ground-truth mesh.
 
-Until reconstructed models exist, the FPGO measurements run on this: surface particles spread
+For FPGO measurements without a trained model: surface particles spread
 evenly over ``gt_mesh.ply`` (dense random samples thinned to the one nearest the centre of each
 cubic cell of edge ``spacing``), each owning an isotropic
 Gaussian (scale ``--scale-factor`` × spacing, opacity 0.95) coloured by the nearest mesh vertex
@@ -8,7 +8,7 @@ colour (SH degree 0); interior particles one per voxel of the filled voxelisatio
 spacing), jittered inside the voxel. It has no reconstruction error and no view-dependent
 colour, so it is a stand-in for the geometry and the binding, not for a trained model's looks.
 
-Usage: PYTHONPATH=. python benchmarks/standin_model.py --mesh /work/data/teapot/gt_mesh.ply \
+Usage: python tools/standin_model.py --mesh /work/data/teapot/gt_mesh.ply \
            --out output/standin_teapot [--spacing 0.025]
 Prints one JSON line (counts).
 """
@@ -18,6 +18,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
 
 import numpy as np
 import torch

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Vertical cross-sections of train.py geometries against the dataset's ground-truth mesh.
 
-    python benchmarks/sdf_section.py -s data/bowl -m output/bowl_before output/bowl \
+    python tools/figures/sdf_section.py -s data/bowl -m output/bowl_before output/bowl \
         --labels "before" "after" --out docs/train_bowl_section.png
 
 One panel for the visual hull of the first model and one per model: the zero level set of its
@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import trimesh
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))  # the repository root
 
 from fracture_gs.recon.errors import ReconstructionError  # noqa: E402
 from fracture_gs.recon.pipeline import load_sdf  # noqa: E402

@@ -1,10 +1,10 @@
 """A frame strip of a simulation for the docs: chosen frames side by side, with FPGO (top rows:
 one per lens exclusive rule of ``--exclusive-rows``, default the group rule; ``--no-exclusive-row``
 adds lenses that blend like all others; ``--interior-all-row`` FPGO with a Gaussian for every
-fractured interior particle, SPEC §6.3 step 4 as written) and without FPGO (bottom row), from one
+fractured interior particle, every fractured interior particle) and without FPGO (bottom row), from one
 orbit view.
 
-Usage: PYTHONPATH=. python benchmarks/frame_strip.py --sim output/sims/two_spheres \
+Usage: python tools/figures/frame_strip.py --sim output/sims/two_spheres \
            --frames 3 5 7 10 24 --out docs/two_spheres_fpgo.png [--size 320] [--view 0]
 Prints one JSON line (what it wrote).
 """
@@ -15,6 +15,8 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the repository root
 
 import cv2
 import numpy as np

@@ -1,7 +1,7 @@
-"""Vertical cross-sections of a dropped block over time (issue 14: why a block breaks or not).
+"""Vertical cross-sections of a dropped block over time: why a block breaks or not (docs/simulation.md).
 
-    python benchmarks/block_section.py --scene block_test_3.5 --times 0.01 0.02 0.04 0.08 0.15 \\
-        --out docs/fragments_test_block_section.png [--no-fragments]
+    python tools/figures/block_section.py --scene block_weak_6 --jitter-seed 0 --ground-friction 0.5 \\
+        --times 0.01 0.04 0.08 0.15 0.25 --out docs/fragments_jittered_weak_block_section.png [--no-fragments]
 
 Simulates one block scene of ``bench_fragments.py`` (same builder, grid and settings) and draws,
 at each time, the particles of the block's middle lattice layer (chosen in the rest
@@ -18,6 +18,9 @@ import json
 import sys
 from pathlib import Path
 
+ROOT = Path(__file__).resolve().parents[2]
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]  # the package, bench_fragments.py, fragment_scenes.py
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -25,7 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_fragments import BLOCKS, PIECE_SHARE  # noqa: E402
-from fracture_gs.mpm.fragment_scenes import block_drop  # noqa: E402
+from fragment_scenes import block_drop  # noqa: E402
 from fracture_gs.mpm.fragments import fragment_sizes  # noqa: E402
 from fracture_gs.mpm.output import atomic_write  # noqa: E402
 from fragment_strip import fragment_colours  # noqa: E402

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Side-by-side picture of one test view: the ground truth and the renders of train.py models.
 
-    python benchmarks/train_strip.py -s data/teapot -m output/teapot_a output/teapot_b \
+    python tools/figures/train_strip.py -s data/teapot -m output/teapot_a output/teapot_b \
         --labels "bound 0.25" "bound 1" --view 5 --out docs/train_teapot.png
 
 Each panel is the test view rendered from the model's latest point_cloud.ply (on the dataset's
@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))  # the repository root
 
 from fracture_gs.data import DatasetError, load_dataset  # noqa: E402
 from fracture_gs.gaussians import read_ply  # noqa: E402

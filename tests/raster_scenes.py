@@ -1,4 +1,4 @@
-"""Random Gaussian scenes shared by the rasterizer tests (no tests in this module)."""
+"""Random Gaussian scenes shared by the rasterizer tests (a helper module, not a test module)."""
 from __future__ import annotations
 
 import math

@@ -1,4 +1,4 @@
-"""Lattice scenes of the fragment acceptance (issue 14), shared by tests and benchmarks.
+"""Lattice scenes of the crack-opening checks (docs/simulation.md), shared by tests and benchmarks.
 
 * :func:`block_drop` — a NACC (or elastic) cube dropped onto the ground;
 * :func:`precracked_bar` — a bar whose middle slab of particles is fractured from the start
@@ -18,7 +18,7 @@ import torch
 
 from fracture_gs.config.scene import PrimitiveConfig
 
-from fracture_gs.mpm.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.scene import sample_primitive

@@ -1,0 +1,150 @@
+"""Generates the results tables of README.md and docs/results.md from benchmarks/results/*.json.
+
+    python tools/results_table.py            # print every generated block
+    python tools/results_table.py --write    # rewrite the blocks in README.md and docs/results.md
+    python tools/results_table.py --check    # exit 1 when a document differs from the JSON
+
+A generated block sits between ``<!-- generated:NAME -->`` and ``<!-- /generated:NAME -->`` and
+is never edited by hand: re-run the benchmark named in the table, store its JSON under
+benchmarks/results/ (the commands are in benchmarks/results/README.md), then ``--write``.
+``tests/test_results_table.py`` runs ``--check``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
+sys.path.insert(0, str(ROOT / "tools" / "figures"))
+from brittle_sphere_table import table as sphere_table  # noqa: E402  (a sibling tool)
+
+SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json")
+
+
+def load(name: str) -> dict:
+    return json.loads((RESULTS / name).read_text())
+
+
+def _sphere_runs() -> tuple[list[dict], dict]:
+    results = [load(name) for name in SPHERE_FILES]
+    return results, results[-1]
+
+
+def readme_block() -> list[str]:
+    """The README's one results table: each row names the benchmark whose JSON holds the figure."""
+    spheres, strong = _sphere_runs()
+    top = max(run["stress_over_strength"] for run in strong["runs"])
+    breaking = next(run for run in strong["runs"] if run["stress_over_strength"] == top and run["fragments"])
+    below = [run for run in strong["runs"] if run["stress_over_strength"] < top]
+    energy_peak = max(run["energy_peak_over_start"] for result in spheres for run in result["runs"])
+    bar = load("brittle_bar.json")
+    bar_fine = max(run["grid"] for run in bar["runs"])
+    bar_top = max((run for run in bar["runs"] if run["grid"] == bar_fine), key=lambda run: run["factor"])
+    mpm = load("bench_mpm.json")
+    nacc = next(row for row in mpm["results"] if row["backend"] == "cpp" and row["material"] == "nacc"
+                and not row["fragments"])
+    low, high = nacc["particle_steps_per_s_range"]
+    fragment_cost = mpm["fragment_cost"][0]["ratio"]
+    brittle_cost = mpm["brittle_cost"][0]["ratio"]
+    sphere_cmd = f"`benchmarks/brittle_sphere.py --fracture-energy {strong['material']['fracture_energy']:g}`"
+    return [
+        "| result | value | printed by |",
+        "|---|---|---|",
+        f"| brittle sphere dropped at {top:g} × its strength (G_f {strong['material']['fracture_energy']:g} J/m², "
+        f"cracks opening): pieces of ≥ 1 % after the impact / at the last frame | "
+        f"{breaking['largest_pieces_after_onset']} / {breaking['pieces_last_frame']} "
+        f"({breaking['complete_damage_share']:.0%} of the particles crushed) | {sphere_cmd} |",
+        f"| the same sphere at ≤ {max(run['stress_over_strength'] for run in below):g} × its strength: pieces | "
+        f"{max(run['pieces_last_frame'] for run in below)} (it stays whole) | {sphere_cmd} |",
+        f"| largest total energy (kinetic + elastic + gravitational + fracture) over its start, "
+        f"{sum(len(result['runs']) for result in spheres)} sphere runs | {energy_peak:.4f} | "
+        "`benchmarks/brittle_sphere.py` |",
+        f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
+        f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
+        f"| Collision-MPM step, {nacc['particles']:,} NACC particles, grid {mpm['grid']}, "
+        f"{mpm['device']} ({mpm['threads']} threads): M particle-steps/s | "
+        f"{nacc['particle_steps_per_s'] / 1e6:.1f} ({low / 1e6:.1f}–{high / 1e6:.1f}) | `benchmarks/bench_mpm.py` |",
+        f"| step time with cracks opening (`fragments: true`) / without | × {fragment_cost:.2f} | "
+        "`benchmarks/bench_mpm.py` |",
+        f"| step time, brittle / NACC material (both with cracks opening) | × {brittle_cost:.2f} | "
+        "`benchmarks/bench_mpm.py` |",
+    ]
+
+
+def bar_block() -> list[str]:
+    bar = load("brittle_bar.json")
+    lines = ["| grid | strength multiple | pieces | damaged particles | fracture energy per broken area / G_f |",
+             "|---|---|---|---|---|"]
+    for run in bar["runs"]:
+        ratio = run["energy_per_broken_area_over_Gf"]
+        lines.append(f"| {run['grid']} ({run['particles']:,} particles) | {run['factor']:g} | {run['pieces']} | "
+                     f"{run['damaged_particles']:,} | {'—' if ratio is None else f'{ratio:.1f}'} |")
+    return lines
+
+
+def mpm_block() -> list[str]:
+    mpm = load("bench_mpm.json")
+    lines = ["| material | cracks opening | particles | ms per step | M particle-steps/s (range of the blocks) |",
+             "|---|---|---|---|---|"]
+    for row in mpm["results"]:
+        low, high = row["particle_steps_per_s_range"]
+        lines.append(f"| {row['material']} ({row['backend']}) | {'on' if row['fragments'] else 'off'} | "
+                     f"{row['particles']:,} | {row['ms_per_step']:.1f} | "
+                     f"{row['particle_steps_per_s'] / 1e6:.2f} ({low / 1e6:.2f}–{high / 1e6:.2f}) |")
+    return lines
+
+
+BLOCKS = {
+    "README.md": {"results": readme_block},
+    "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
+                        "brittle-bar": bar_block, "mpm-step": mpm_block},
+}
+
+
+def render(text: str, name: str, lines: list[str]) -> str:
+    pattern = re.compile(rf"(<!-- generated:{re.escape(name)} -->\n).*?(<!-- /generated:{re.escape(name)} -->)",
+                         re.DOTALL)
+    if not pattern.search(text):
+        raise SystemExit(f"error: no block '{name}' (<!-- generated:{name} --> ... <!-- /generated:{name} -->)")
+    return pattern.sub(lambda match: match.group(1) + "\n".join(lines) + "\n" + match.group(2), text)
+
+
+def expected(document: str) -> tuple[str, str]:
+    """(the document as it is, the document with its generated blocks regenerated)."""
+    text = (ROOT / document).read_text()
+    new = text
+    for name, make in BLOCKS[document].items():
+        new = render(new, name, make())
+    return text, new
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--write", action="store_true", help="rewrite the generated blocks in place")
+    mode.add_argument("--check", action="store_true", help="exit 1 if a document's blocks differ from the JSON")
+    args = parser.parse_args(argv)
+    stale = []
+    for document, blocks in BLOCKS.items():
+        if not args.write and not args.check:
+            for name, make in blocks.items():
+                print(f"<!-- {document}: {name} -->\n" + "\n".join(make()) + "\n")
+            continue
+        text, new = expected(document)
+        if args.write and new != text:
+            (ROOT / document).write_text(new)
+        elif args.check and new != text:
+            stale.append(document)
+    if stale:
+        print("stale generated blocks in " + ", ".join(stale) + ": run python tools/results_table.py --write",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
