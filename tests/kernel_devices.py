@@ -1,5 +1,5 @@
 """Devices the compiled kernels are tested on: the CPU always, CUDA where a GPU and the CUDA
-kernels are both present (``tools/gpu_check.sh`` runs the tests there).
+kernels are both present (``benchmarks/gpu_check.sh`` runs the tests there).
 
 Kernel-vs-twin tests take a ``device`` parameter from :data:`KERNEL_DEVICES`; on CUDA they
 compare the CUDA kernel with the CPU kernel's result (the reference) as well as with the twin.

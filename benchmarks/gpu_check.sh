@@ -5,9 +5,9 @@
 # keeps a copy in $GPU_CHECK_OUT (default /tmp/fracture_gs_gpu_check). Meant to finish in under
 # 10 minutes on one GPU machine; the CUDA build is most of it.
 #
-#   bash tools/gpu_check.sh                 # from the repository root, on a machine with a GPU
-#   bash tools/gpu_check.sh --skip-build    # the extension is already built with CUDA
-#   bash tools/gpu_check.sh --dry-run-cpu   # the same steps on the CPU (small sizes): checks the script
+#   bash benchmarks/gpu_check.sh                 # from the repository root, on a machine with a GPU
+#   bash benchmarks/gpu_check.sh --skip-build    # the extension is already built with CUDA
+#   bash benchmarks/gpu_check.sh --dry-run-cpu   # the same steps on the CPU (small sizes): checks the script
 #
 # Exit status: 0 when every step passed, 1 otherwise (no GPU, no CUDA kernels, a failed or
 # skipped CUDA test, a benchmark error or a step over its time limit).
