@@ -57,6 +57,14 @@ def test_keys_beside_a_preset_override_it() -> None:
     assert material.E == load_preset("porcelain").keys["E"]
 
 
+def test_a_scene_can_soften_a_preset_less() -> None:
+    preset = load_preset("porcelain")
+    stiffer = material_from_yaml({"part": 0, "preset": "porcelain", "softening": 100}, "m")
+    assert stiffer.E == pytest.approx(preset.real["E"] / 100)
+    assert stiffer.strength == pytest.approx(preset.real["strength"] / 10)
+    assert impact_ratio(stiffer.to_yaml(), preset.speed) == pytest.approx(impact_ratio(preset.real, preset.speed))
+
+
 def test_the_paper_rows_are_table_1_as_printed() -> None:
     teapot = material_from_yaml({"part": 0, "preset": "paper_teapot"}, "m")
     assert (teapot.E, teapot.nu, teapot.density, teapot.beta, teapot.xi, teapot.M) == (5.0e5, 0.46, 5, 0.5, 1, 2.36)
@@ -68,6 +76,8 @@ def test_the_paper_rows_are_table_1_as_printed() -> None:
     ({"part": 0, "preset": "../../etc/passwd"}, "unknown preset"),
     ({"part": 0, "preset": "porcelain", "model": "nacc"}, "preset 'porcelain' is a brittle material, not nacc"),
     ({"part": 0, "preset": "porcelain", "beta": 0.5}, "unknown key for model brittle"),
+    ({"part": 0, "preset": "porcelain", "softening": 0.5}, "softening: 0.5 is not >= 1"),
+    ({"part": 0, "preset": "paper_teapot", "softening": 10}, "preset 'paper_teapot' has no real values to soften"),
 ])
 def test_bad_presets_name_the_key(material: dict, message: str) -> None:
     scene = {"name": "presets", "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": 16},
