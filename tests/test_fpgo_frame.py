@@ -218,6 +218,39 @@ def test_fractured_interior_particles_get_interpolated_gaussians(tmp_path: Path)
     assert checked >= 5
 
 
+def test_an_interior_colour_paints_the_faces_a_fracture_opens(tmp_path: Path):
+    points, surface = lattice_block((0.06, 0.04, 0.04))
+    points = points + 0.15 * SPACING * np.random.default_rng(3).uniform(-1, 1, points.shape)
+    write_model(tmp_path / "model", points, surface, sh_degree=2)
+    scene = block_scene(tmp_path / "model", TRANSFORM)
+    scene["objects"][0]["materials"][0]["interior_colour"] = [0.95, 0.9, 0.8]
+    rest = transformed(points)
+    sim = Simulation.open(write_sim(tmp_path / "sim", scene, particle_arrays(rest, surface),
+                                    identity_frames(rest, 1)))
+    assert sim.scene.objects[0].materials[0].interior_colour == (0.95, 0.9, 0.8)
+    fpgo = SceneGaussians.from_simulation(sim, settings=FPGOSettings(k_neighbours=1)).frame(
+        crack_frame(sim, points, gap=3.0 * SPACING), fpgo=True)
+    interior = fpgo.is_fpgo & (fpgo.exclusive < 0)
+    assert interior.any()
+    colour = 0.5 + 0.28209479177387814 * fpgo.sh[interior][:, 0]      # SH degree 0 seen from anywhere
+    assert torch.allclose(colour, torch.tensor([0.95, 0.9, 0.8]).expand_as(colour), atol=1e-5)
+    assert not fpgo.sh[interior][:, 1:].any()
+    # the surface keeps its trained colours
+    assert not torch.allclose(fpgo.sh[~fpgo.is_fpgo][:, 0], fpgo.sh[interior][:1, 0].expand(int((~fpgo.is_fpgo).sum()), 3))
+
+
+@pytest.mark.parametrize("colour, message", [([1.2, 0, 0], "each channel must be in [0, 1]"),
+                                             ([0.5, 0.5], "expected a list of 3 numbers")])
+def test_a_bad_interior_colour_names_its_key(colour: list, message: str):
+    from fracture_gs.config.scene import SceneError, parse_scene
+
+    scene = block_scene(None)
+    scene["objects"][0]["materials"][0]["interior_colour"] = colour
+    with pytest.raises(SceneError, match=r"objects\[0\]\.materials\[0\]\.interior_colour") as error:
+        parse_scene(scene)
+    assert message in str(error.value)
+
+
 def test_only_exposed_fractured_interior_particles_are_drawn(tmp_path: Path):
     """The NACC flag marks a damaged volume; FPGO's default draws its interior particles only on
     a fracture surface (they kept fewer than ``exposure`` of their rest neighbours), the buried

@@ -135,6 +135,7 @@ class MaterialConfig:
 
     part: int
     material: Material
+    interior_colour: tuple[float, float, float] | None = None  # RGB of the faces a fracture opens
 
     @property
     def model(self) -> str:
@@ -227,7 +228,9 @@ def _object_dict(obj: ObjectConfig) -> dict[str, Any]:
     out["velocity"] = list(obj.velocity)
     out["angular_velocity"] = list(obj.angular_velocity)
     out["velocity_gradient"] = [list(row) for row in obj.velocity_gradient]
-    out["materials"] = [{"part": m.part, **m.material.to_yaml()} for m in obj.materials]
+    out["materials"] = [{"part": m.part, **m.material.to_yaml(),
+                         **({"interior_colour": list(m.interior_colour)} if m.interior_colour else {})}
+                        for m in obj.materials]
     return out
 
 
@@ -494,4 +497,8 @@ def _parse_transform(value: Any, path: str) -> TransformConfig:
 
 def _parse_material(value: Any, path: str) -> MaterialConfig:
     data = _mapping(value, path)
-    return MaterialConfig(part=_integer(data, "part", path, 0, ge=0), material=material_from_yaml(data, path))
+    colour = _vec3(data, "interior_colour", path, None)
+    if colour is not None and not all(0.0 <= c <= 1.0 for c in colour):
+        raise SceneError(f"{path}.interior_colour", f"{list(colour)}: each channel must be in [0, 1]")
+    material = material_from_yaml({key: v for key, v in data.items() if key != "interior_colour"}, path)
+    return MaterialConfig(part=_integer(data, "part", path, 0, ge=0), material=material, interior_colour=colour)

@@ -273,6 +273,22 @@ def _pad_sh(sh: np.ndarray, coefficients: int) -> np.ndarray:
     return out
 
 
+def _paint_interior(sim: Simulation, interior: np.ndarray, interior_sh: np.ndarray) -> None:
+    """Give the interior particles of parts with an ``interior_colour`` that flat colour (SH degree
+    0 only) instead of the one interpolated from the surface: the faces a fracture opens in
+    porcelain are white whatever its glaze."""
+    painted = [(index, material.part, material.interior_colour)
+               for index, obj in enumerate(sim.scene.objects) for material in obj.materials
+               if material.interior_colour is not None]
+    if not painted or interior.size == 0:
+        return
+    part_id = sim.particles.part_id if sim.particles.part_id is not None else np.zeros(len(sim.particles), np.int32)
+    for index, part, colour in painted:
+        members = (sim.particles.obj_id[interior] == index) & (part_id[interior] == part)
+        interior_sh[members] = 0.0
+        interior_sh[members, 0] = rgb_to_sh_dc(np.asarray(colour, np.float32))
+
+
 def _fracture_arrays(sim: Simulation, tables: list[_ObjectTable], coefficients: int,
                      interpolation_k: int) -> dict[str, np.ndarray]:
     """Per-particle arrays of :class:`FractureParticles` (own Gaussian, sphere centre Gaussian,
@@ -302,6 +318,7 @@ def _fracture_arrays(sim: Simulation, tables: list[_ObjectTable], coefficients: 
         opacity, sh = _interpolated_appearance(rest_x, table, interior[members], interpolation_k)
         interior_opacity[members] = opacity
         interior_sh[members] = _pad_sh(sh, coefficients)
+    _paint_interior(sim, interior, interior_sh)
     return {"own_gaussian": own_gaussian, "centre_gaussian": centre_gaussian,
             "interior_row": interior_row, "interior_opacity": interior_opacity,
             "interior_sh": interior_sh, "rest_sigma": rest_sigma.astype(np.float32)}

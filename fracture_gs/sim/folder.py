@@ -42,6 +42,7 @@ class SimParticles:
     is_surface: np.ndarray      # (N,) bool
     gaussian_index: np.ndarray  # (N,) int64, row in the object's point_cloud.ply or -1
     rest_volume: np.ndarray     # (N,) float32
+    part_id: np.ndarray | None = None  # (N,) int32 part within the object (None in older runs)
 
     def __len__(self) -> int:
         return int(self.rest_x.shape[0])
@@ -111,12 +112,13 @@ class Simulation:
         except SceneError as exc:
             message = str(exc) if str(scene_path) in str(exc) else f"{scene_path}: {exc}"
             raise SimulationError(message) from None
-        arrays = _load_npz(root / PARTICLES_FILE, PARTICLE_ARRAYS)
+        arrays = _load_npz(root / PARTICLES_FILE, PARTICLE_ARRAYS, optional=("part_id",))
         particles = SimParticles(
             rest_x=arrays["rest_x"].astype(np.float32), obj_id=arrays["obj_id"].astype(np.int32),
             is_surface=arrays["is_surface"].astype(bool),
             gaussian_index=arrays["gaussian_index"].astype(np.int64),
-            rest_volume=arrays["rest_volume"].astype(np.float32))
+            rest_volume=arrays["rest_volume"].astype(np.float32),
+            part_id=arrays["part_id"].astype(np.int32) if "part_id" in arrays else None)
         count = len(particles)
         for name in PARTICLE_ARRAYS:
             if arrays[name].shape[0] != count:
