@@ -7,7 +7,7 @@ import errno
 import pytest
 
 from fracture_gs.cli.exit_codes import run_guarded
-from fracture_gs.cli.output_folder import OutputFolderError
+from fracture_gs.io.output_folder import OutputFolderError
 from fracture_gs.experiments.runner import RunFailed
 from fracture_gs.experiments.sim_eval import EvaluationError
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
+from fracture_gs.io.output_folder import OutputFolderError, os_error_line, prepare_output_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 

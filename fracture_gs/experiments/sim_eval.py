@@ -28,7 +28,7 @@ from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, 
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
 from fracture_gs.render.views import View
-from fracture_gs.sim.folder import Simulation, SimulationError
+from fracture_gs.io.sim_reader import Simulation, SimulationError
 
 DEFAULT_RESOLUTION = (400, 400)
 _PNG_NAME = re.compile(r"^(\d{5,})\.png$")
@@ -95,7 +95,7 @@ def open_simulation(path: Path) -> Simulation:
 def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
     """The cameras of ``spec`` (``orbit:N`` / ``train`` / ``test`` / cameras.json), framed as
     ``render.py`` frames them for the whole run."""
-    from fracture_gs.cli.render import resolve_views
+    from fracture_gs.render.sim_views import resolve_views
     from fracture_gs.render.views import ViewSpecError
 
     try:

@@ -6,7 +6,6 @@ rendered here first when missing) and computes PSNR, SSIM and LPIPS (AlexNet) pe
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +16,7 @@ import torch
 
 from fracture_gs.metrics.image import psnr, ssim
 from fracture_gs.metrics.protocol import MetricNetworks
-from fracture_gs.mpm.output import write_text_atomic
+from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.experiments.sim_eval import EvaluationError
 
 
@@ -51,10 +50,10 @@ def _read_png(path: Path) -> np.ndarray:
 
 def _render_folder(model: Path, split: str, device: torch.device) -> tuple[Path, int]:
     """``<model>/<split>/ours_<N>`` holding renders/ and gt/, rendered if missing."""
-    from fracture_gs.cli import render_model
     from fracture_gs.data import DatasetError
     from fracture_gs.gaussians import PlyFormatError
-    from fracture_gs.recon.model_io import latest_iteration
+    from fracture_gs.pipeline.render_model import RenderInputError, render_model
+    from fracture_gs.io.model_layout import latest_iteration
 
     if not model.is_dir():
         raise EvaluationError(f"{model}: model folder not found")
@@ -64,12 +63,10 @@ def _render_folder(model: Path, split: str, device: torch.device) -> tuple[Path,
                               "(is it a train.py output folder?)")
     folder = model / split / f"ours_{iteration}"
     if not (folder / "renders").is_dir() or not (folder / "gt").is_dir():
-        args = argparse.Namespace(model_path=str(model), source_path=None, iteration=iteration,
-                                  skip_train=split != "train", skip_test=split != "test",
-                                  device=device.type, quiet=True)
         try:
-            render_model.run(args)
-        except (render_model.RenderInputError, DatasetError, PlyFormatError) as exc:
+            render_model(str(model), iteration=iteration, skip_train=split != "train",
+                         skip_test=split != "test", device=device.type, quiet=True)
+        except (RenderInputError, DatasetError, PlyFormatError) as exc:
             raise EvaluationError(str(exc)) from None
     if not (folder / "renders").is_dir():
         raise EvaluationError(f"{folder}: no renders/ (the dataset has no {split} split)")

@@ -1,21 +1,5 @@
-"""The ``-m`` model folder of train.py (3DGS-compatible, SPEC §4) and its files.
-
-Layout::
-
-    cfg_args                                   the run's options as 3DGS writes them
-    cameras.json                               3DGS camera list (test views, then train)
-    input.ply                                  initial point cloud (x y z nx ny nz red green blue)
-    point_cloud/iteration_N/point_cloud.ply    Gaussians, standard 3DGS attributes
-    sdf.npz                                    sdf (nx,ny,nz), hull_sdf, origin, voxel
-    mesh.ply                                   marching-cubes mesh of the SDF
-    particles.ply                              x y z volume is_surface part_id gaussian_index
-    particles.json                             spacing and counts (for the renderer)
-    train_log.csv                              per-iteration loss / PSNR of both stages
-    timings.json                               wall and CPU seconds per stage
-    chkpnt<N>.pth                              resumable state of the Gaussian stage
-
-Every file is written to a temporary name in the folder and renamed when complete.
-"""
+"""Reading and writing the files of a train.py model folder (layout and rules:
+:mod:`fracture_gs.io.model_layout`)."""
 from __future__ import annotations
 
 import ast
@@ -24,10 +8,8 @@ import csv
 import json
 import math
 import os
-import re
 import shutil
-import tempfile
-from argparse import Namespace
+from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
@@ -35,38 +17,18 @@ import plyfile
 import torch
 import trimesh
 
-from fracture_gs.recon.errors import ReconstructionError
+from fracture_gs.gaussians import GaussianModel, write_ply
+from fracture_gs.io.atomic import atomic_path, write_text_atomic
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import remove_written_tree
+from fracture_gs.io.model_layout import (EVALUATION_DIR, LOCK_NAME, PARTICLES_FILE, PARTICLES_JSON, RENDER_SPLITS,
+                                         ModelError, iterations, point_cloud_path)
+from fracture_gs.io.particles_ply import write_particles_ply
 from fracture_gs.render.camera import Camera
 
-PARTICLES_FILE = "particles.ply"
-PARTICLES_JSON = "particles.json"
-POINT_CLOUD_DIR = "point_cloud"
-CHECKPOINT_PATTERN = re.compile(r"chkpnt(\d+)\.pth$")
-
-
-@contextlib.contextmanager
-def atomic_path(path: str) -> Iterator[str]:
-    """Yield a temporary path next to ``path``; it replaces ``path`` only on success."""
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=".tmp_", suffix=os.path.splitext(path)[1],
-                                         dir=folder)
-    os.close(handle)
-    try:
-        yield temporary
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(temporary, 0o666 & ~umask)  # mkstemp creates 0600 files
-        os.replace(temporary, path)
-    finally:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-
-
 def write_text(path: str, text: str) -> None:
-    with atomic_path(path) as temporary:
-        with open(temporary, "w", encoding="utf-8") as handle:
-            handle.write(text)
+    """Write a text file of the folder (atomically)."""
+    write_text_atomic(path, text)
 
 
 def write_json(path: str, content: Any) -> None:
@@ -102,31 +64,12 @@ class OutputFolder:
                 shutil.rmtree(path, ignore_errors=True)
 
 
-LOCK_NAME = ".train.lock"
-
-
 @contextlib.contextmanager
 def run_lock(path: str) -> Iterator[None]:
-    """Hold an advisory lock on the model folder ``path`` (its ``.train.lock``) for one train.py
-    run; the system releases it when the run ends or its process dies, so it never goes stale.
-    ReconstructionError naming the folder when another run holds it (two runs writing one folder
-    would mix their files). Where ``fcntl`` is missing (Windows) it does nothing."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover
-        yield
-        return
-    os.makedirs(path, exist_ok=True)
-    with open(os.path.join(path, LOCK_NAME), "a+", encoding="utf-8") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ReconstructionError(f"{path}: another train.py run is writing this model folder "
-                                      "(it holds .train.lock); wait for it or give another -m") from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"{os.getpid()}\n")
-        handle.flush()
+    """Hold the lock of the model folder ``path`` (its ``.train.lock``) for one train.py run
+    (:func:`fracture_gs.io.lock.folder_lock`: FolderBusy naming the folder when another run
+    holds it, since two runs writing one folder would mix their files)."""
+    with folder_lock(path, LOCK_NAME, "train.py", "model folder"):
         yield
 
 
@@ -134,8 +77,9 @@ def run_lock(path: str) -> Iterator[None]:
 
 
 def write_cfg_args(path: str, options: dict[str, Any]) -> None:
-    """Write ``Namespace(key=value, ...)`` like 3DGS's train.py does."""
-    write_text(path, repr(Namespace(**options)))
+    """Write ``Namespace(key=value, ...)`` as 3DGS's train.py does."""
+    arguments = ", ".join(f"{key}={value!r}" for key, value in options.items())
+    write_text(path, f"Namespace({arguments})")
 
 
 def read_cfg_args(path: str) -> dict[str, Any]:
@@ -170,40 +114,6 @@ def write_cameras_json(path: str, views: list[tuple[str, Camera]]) -> None:
 # ----------------------------------------------------------------------------- particles
 
 
-def write_particles_ply(path: str, position: np.ndarray, volume: np.ndarray,
-                        is_surface: np.ndarray, part_id: np.ndarray,
-                        gaussian_index: np.ndarray, comments: dict[str, float]) -> None:
-    """particles.ply: x y z volume (float32), is_surface (uint8), part_id, gaussian_index
-    (int32); ``comments`` become ``comment key value`` header lines."""
-    vertices = np.empty(len(position), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                               ("volume", "<f4"), ("is_surface", "u1"),
-                                               ("part_id", "<i4"), ("gaussian_index", "<i4")])
-    for axis, name in enumerate("xyz"):
-        vertices[name] = position[:, axis]
-    vertices["volume"] = volume
-    vertices["is_surface"] = is_surface.astype(np.uint8)
-    vertices["part_id"] = part_id
-    vertices["gaussian_index"] = gaussian_index
-    ply = plyfile.PlyData([plyfile.PlyElement.describe(vertices, "vertex")], byte_order="<",
-                          comments=[f"{key} {value!r}" for key, value in comments.items()])
-    with atomic_path(path) as temporary:
-        ply.write(temporary)
-
-
-def read_particles_ply(path: str) -> dict[str, np.ndarray]:
-    """The columns of a particles.ply plus its header comments (``comments``: dict)."""
-    ply = plyfile.PlyData.read(path)
-    data = ply["vertex"].data
-    columns = {name: np.asarray(data[name]) for name in data.dtype.names}
-    comments = {}
-    for line in ply.comments:
-        key, _, value = line.partition(" ")
-        with contextlib.suppress(ValueError):
-            comments[key] = float(value)
-    columns["comments"] = comments
-    return columns
-
-
 def write_input_ply(path: str, position: np.ndarray, normal: np.ndarray,
                     color: np.ndarray) -> None:
     """3DGS's ``input.ply`` layout: x y z nx ny nz (float32) red green blue (uint8)."""
@@ -217,7 +127,7 @@ def write_input_ply(path: str, position: np.ndarray, normal: np.ndarray,
     for channel, name in enumerate(("red", "green", "blue")):
         vertices[name] = rgb[:, channel]
     with atomic_path(path) as temporary:
-        plyfile.PlyData([plyfile.PlyElement.describe(vertices, "vertex")]).write(temporary)
+        plyfile.PlyData([plyfile.PlyElement.describe(vertices, "vertex")]).write(str(temporary))
 
 
 # ----------------------------------------------------------------------------- sdf, mesh
@@ -250,7 +160,7 @@ def read_sdf(path: str) -> tuple[np.ndarray, np.ndarray, tuple[float, float, flo
 
 def write_mesh(path: str, mesh: trimesh.Trimesh) -> None:
     with atomic_path(path) as temporary:
-        mesh.export(temporary, file_type="ply")
+        mesh.export(str(temporary), file_type="ply")
 
 
 # ----------------------------------------------------------------------------- log
@@ -273,29 +183,78 @@ def write_log_csv(path: str, rows: list[dict[str, Any]]) -> None:
 # ----------------------------------------------------------------------------- iterations
 
 
-def point_cloud_path(model_path: str, iteration: int) -> str:
-    return os.path.join(model_path, POINT_CLOUD_DIR, f"iteration_{iteration}", "point_cloud.ply")
-
-
-def latest_iteration(model_path: str) -> int | None:
-    """Largest N of ``point_cloud/iteration_N`` (3DGS's ``searchForMaxIteration``)."""
-    folder = os.path.join(model_path, POINT_CLOUD_DIR)
-    if not os.path.isdir(folder):
-        return None
-    found = [int(m.group(1)) for name in os.listdir(folder)
-             if (m := re.fullmatch(r"iteration_(\d+)", name))
-             and os.path.isfile(os.path.join(folder, name, "point_cloud.ply"))]
-    return max(found) if found else None
-
-
-def checkpoints(model_path: str) -> list[tuple[int, str]]:
-    """(iteration, path) of the chkpnt files in the folder, oldest first."""
-    if not os.path.isdir(model_path):
-        return []
-    found = [(int(m.group(1)), os.path.join(model_path, name))
-             for name in os.listdir(model_path) if (m := CHECKPOINT_PATTERN.fullmatch(name))]
-    return sorted(found)
+def remove_earlier_runs(model_path: str, kept: set[int]) -> None:
+    """After a run wrote the iterations ``kept``: remove the point clouds of every other
+    iteration (an earlier run's; their folders too once empty) and the renders and reports the
+    tools made of the earlier model. Files the tools did not write stay."""
+    for iteration in iterations(model_path):
+        if iteration not in kept:
+            cloud = Path(point_cloud_path(model_path, iteration))
+            cloud.unlink()
+            with contextlib.suppress(OSError):
+                cloud.parent.rmdir()
+    for name in (*RENDER_SPLITS, EVALUATION_DIR):
+        remove_written_tree(Path(model_path) / name)
 
 
 def finite_or_none(value: float) -> float | None:
     return value if math.isfinite(value) else None
+
+
+def model_spacing(model_dir: Path | None) -> float | None:
+    """Rest particle spacing (model frame) from ``particles.json``, or None without one.
+
+    Two layouts are read: ``{"spacing": s}`` (written by :func:`write_model_folder`) and the one
+    ``train.py`` writes, with ``surface_spacing`` (Poisson-disk radius of the surface particles)
+    and ``interior_particle_size`` (mean spacing of the interior samples, ``n_interior`` of them).
+    For the latter the larger of the two counts: d_c = 1.5 × spacing must connect the sparser
+    of the two particle sets, or intact bodies would fall apart into hidden "fragments".
+    """
+    if model_dir is None:
+        return None
+    path = model_dir / PARTICLES_JSON
+    if not path.is_file():
+        return None
+    try:
+        content = json.loads(path.read_text())
+        if "spacing" in content:
+            spacing = float(content["spacing"])
+        else:
+            spacing = float(content["surface_spacing"])
+            if int(content.get("n_interior", 0)) > 0:
+                spacing = max(spacing, float(content["interior_particle_size"]))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ModelError(f"{path}: no valid 'spacing' or 'surface_spacing' "
+                         f"({type(exc).__name__})") from None
+    if not spacing > 0:
+        raise ModelError(f"{path}: spacing must be > 0, got {spacing}")
+    return spacing
+
+
+def estimated_spacing(points: np.ndarray) -> float:
+    """Median distance from each point to its nearest neighbour (1e-3 for < 2 points)."""
+    from scipy.spatial import cKDTree
+
+    if points.shape[0] < 2:
+        return 1e-3
+    distance, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(distance[:, 1]))
+
+
+def write_model_folder(folder: Path, x: np.ndarray, volume: np.ndarray, is_surface: np.ndarray,
+                       gaussian_index: np.ndarray, gaussians: GaussianModel, *,
+                       part_id: np.ndarray | None = None, spacing: float | None = None,
+                       iteration: int = 0) -> Path:
+    """A minimal model folder (not trained: scenes and benchmarks build their objects in code):
+    ``particles.ply``, ``point_cloud/iteration_<iteration>/point_cloud.ply`` and, with
+    ``spacing``, ``particles.json`` (every file atomically). Returns the folder."""
+    if gaussian_index.max(initial=-1) >= gaussians.num_gaussians:
+        raise ValueError(f"gaussian_index reaches {int(gaussian_index.max())}, the model has "
+                         f"{gaussians.num_gaussians} Gaussians")
+    folder.mkdir(parents=True, exist_ok=True)
+    write_particles_ply(folder / PARTICLES_FILE, np.asarray(x, dtype=np.float32), volume,
+                        is_surface, 0 if part_id is None else part_id, gaussian_index)
+    write_ply(point_cloud_path(str(folder), iteration), gaussians)
+    if spacing is not None:
+        write_text_atomic(folder / PARTICLES_JSON, json.dumps({"spacing": float(spacing)}) + "\n")
+    return folder
