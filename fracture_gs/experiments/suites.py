@@ -242,18 +242,19 @@ def resampled_model_particles(model_dir: Path, nv: int, out_path: Path, seed: in
     import trimesh
 
     from fracture_gs.recon.grid import VoxelGrid
+    from fracture_gs.io.model_layout import MESH_FILE, PARTICLES_FILE, PARTICLES_JSON, SDF_FILE
     from fracture_gs.io.particles_ply import read_particles_ply, write_particles_ply
     from fracture_gs.recon.particles import sample_particles
     from scipy.spatial import cKDTree
 
     try:
-        with np.load(model_dir / "sdf.npz") as data:
+        with np.load(model_dir / SDF_FILE) as data:
             sdf = torch.from_numpy(data["sdf"].astype(np.float32))
             grid = VoxelGrid(tuple(float(v) for v in data["origin"]), float(data["voxel"]),
                              tuple(int(n) for n in sdf.shape))
-        info = json.loads((model_dir / "particles.json").read_text())
-        mesh = trimesh.load(model_dir / "mesh.ply", force="mesh")
-        trained = read_particles_ply(str(model_dir / "particles.ply"))
+        info = json.loads((model_dir / PARTICLES_JSON).read_text())
+        mesh = trimesh.load(model_dir / MESH_FILE, force="mesh")
+        trained = read_particles_ply(model_dir / PARTICLES_FILE)
     except (OSError, KeyError, ValueError) as exc:
         raise EvaluationError(f"{model_dir}: cannot resample its particles "
                               f"({type(exc).__name__}: {exc})") from None
@@ -325,7 +326,7 @@ def nv_sweep(settings: ExperimentSettings) -> dict:
     reference = Path(jobs[-1].out_dir)
     rows = []
     for nv, job, result in zip(values, jobs, results):
-        with np.load(Path(job.out_dir) / "particles.npz") as data:
+        with np.load(SimLayout(job.out_dir).particles_path) as data:
             count = int(data["mass"].shape[0])
         error = coordinate_errors(Path(job.out_dir), reference)
         rows.append({"nv": nv, "particles": count, "x_error": float(error[0]),

@@ -21,8 +21,8 @@ from fracture_gs.gaussians import GaussianModel, write_ply
 from fracture_gs.io.atomic import atomic_path, write_text_atomic
 from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.manifest import remove_written_tree
-from fracture_gs.io.model_layout import (EVALUATION_DIR, LOCK_NAME, PARTICLES_FILE, PARTICLES_JSON, RENDER_SPLITS,
-                                         ModelError, iterations, point_cloud_path)
+from fracture_gs.io.model_layout import (EVALUATION_DIR, LOCK_NAME, PARTICLES_FILE, PARTICLES_JSON,
+                                         RENDER_SPLITS, ModelError, iterations, point_cloud_path)
 from fracture_gs.io.particles_ply import write_particles_ply
 from fracture_gs.render.camera import Camera
 

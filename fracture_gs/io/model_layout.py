@@ -40,6 +40,8 @@ POINT_CLOUD_DIR = "point_cloud"
 POINT_CLOUD_FILE = "point_cloud.ply"
 RENDER_SPLITS = ("train", "test")
 EVALUATION_DIR = "evaluation"
+RENDERED_DIR = "renders"        # in <split>/ours_<N>/: render.py -m's images
+GROUND_TRUTH_DIR = "gt"         # in <split>/ours_<N>/: the dataset's images beside them
 LOCK_NAME = ".train.lock"
 CHECKPOINT_PATTERN = re.compile(r"chkpnt(\d+)\.pth$")
 _ITERATION_PATTERN = re.compile(r"iteration_(\d+)")
@@ -52,6 +54,16 @@ class ModelError(ValueError):
 def point_cloud_path(model_path: str, iteration: int) -> str:
     """``<model>/point_cloud/iteration_<iteration>/point_cloud.ply``."""
     return os.path.join(model_path, POINT_CLOUD_DIR, f"iteration_{iteration}", POINT_CLOUD_FILE)
+
+
+def split_render_dir(model_path: str, split: str, iteration: int) -> str:
+    """``<model>/<split>/ours_<iteration>``: render.py -m's renders and ground truth."""
+    return os.path.join(model_path, split, f"ours_{iteration}")
+
+
+def view_image_name(index: int) -> str:
+    """File name of view ``index`` in the renders and ground-truth folders."""
+    return f"{index:05d}.png"
 
 
 def iterations(model_path: str) -> list[int]:

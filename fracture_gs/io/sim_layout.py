@@ -104,4 +104,5 @@ class SimLayout:
         """The frame numbers of the frame files present, ascending."""
         if not self.frames_dir.is_dir():
             return []
-        return sorted(n for f in self.frames_dir.iterdir() if (n := frame_number(f.name)) is not None)
+        numbers = (frame_number(path.name) for path in self.frames_dir.iterdir())
+        return sorted(n for n in numbers if n is not None)

@@ -26,10 +26,11 @@ import numpy as np
 import torch
 import yaml
 
-from fracture_gs.io.atomic import remove_temporaries, save_npz_atomic, write_bytes_atomic, write_text_atomic
+from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
+                                   write_text_atomic)
 from fracture_gs.io.manifest import Manifest, remove_written_tree
 from fracture_gs.io.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
-from fracture_gs.io.sim_layout import CHECKPOINT_FILE, DIAGNOSTICS_CSV, DIAGNOSTICS_PNG, SimLayout
+from fracture_gs.io.sim_layout import SimLayout
 
 _SOLVER_PREFIX = "solver/"
 
@@ -121,8 +122,8 @@ class SimulationOutput(SimLayout):
             removed = len(remove_written_tree(self.root))
         else:  # a folder without a manifest: only the names a simulation writes
             stale = [*self.frames_dir.glob("frame_*.npz")] if self.frames_dir.is_dir() else []
-            stale += [self.root / name for name in (CHECKPOINT_FILE, DIAGNOSTICS_CSV, DIAGNOSTICS_PNG)
-                      if (self.root / name).is_file()]
+            stale += [path for path in (self.checkpoint_path, self.csv_path, self.png_path)
+                      if path.is_file()]
             for path in stale:
                 path.unlink()
             removed = len(stale)

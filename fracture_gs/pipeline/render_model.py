@@ -20,7 +20,9 @@ from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
 from fracture_gs.io.manifest import Manifest
 from fracture_gs.io.model_folder import read_cfg_args
-from fracture_gs.io.model_layout import CFG_ARGS_FILE, POINT_CLOUD_DIR, latest_iteration, point_cloud_path
+from fracture_gs.io.model_layout import (CFG_ARGS_FILE, GROUND_TRUTH_DIR, POINT_CLOUD_DIR,
+                                         RENDERED_DIR, latest_iteration, point_cloud_path,
+                                         split_render_dir, view_image_name)
 from fracture_gs.metrics.image import psnr, ssim
 from fracture_gs.recon.gaussian_fit import render_model as render_gaussians
 
@@ -40,11 +42,11 @@ def _write_png(path: str, image: torch.Tensor) -> None:
 def render_split(model_path: str, split: str, iteration: int, dataset: Dataset,
                  gaussians: GaussianModel, device: torch.device, quiet: bool) -> dict[str, float]:
     """Render every view of ``dataset`` into ``<model>/<split>/ours_<iteration>/``."""
-    root = os.path.join(model_path, split, f"ours_{iteration}")
+    root = split_render_dir(model_path, split, iteration)
     background = torch.tensor(dataset.background, dtype=torch.float32, device=device)
     manifest = Manifest.load(root)
-    manifest.add(*(os.path.join(root, kind, f"{index:05d}.png") for index in range(len(dataset))
-                   for kind in ("renders", "gt")))
+    manifest.add(*(os.path.join(root, kind, view_image_name(index)) for index in range(len(dataset))
+                   for kind in (RENDERED_DIR, GROUND_TRUTH_DIR)))
     manifest.save()
     psnrs, ssims = [], []
     with torch.no_grad():
@@ -53,8 +55,8 @@ def render_split(model_path: str, split: str, iteration: int, dataset: Dataset,
             rgb = render_gaussians(gaussians, dataset.cameras[index].to(device), background)["rgb"]
             rgb = rgb.clamp(0, 1)
             target = dataset.images[index].to(device)
-            _write_png(os.path.join(root, "renders", f"{index:05d}.png"), rgb)
-            _write_png(os.path.join(root, "gt", f"{index:05d}.png"), target)
+            _write_png(os.path.join(root, RENDERED_DIR, view_image_name(index)), rgb)
+            _write_png(os.path.join(root, GROUND_TRUTH_DIR, view_image_name(index)), target)
             psnrs.append(float(psnr(rgb, target)))
             ssims.append(float(ssim(rgb, target)))
     return {"psnr": float(np.mean(psnrs)), "ssim": float(np.mean(ssims)), "views": len(psnrs)}
@@ -103,5 +105,5 @@ def render_model(model_path: str, *, source_path: str | None = None, iteration: 
                                       torch_device, quiet)
         print(f"[render] {split}: {results[split]['views']} views, PSNR "
               f"{results[split]['psnr']:.2f} dB, SSIM {results[split]['ssim']:.4f} -> "
-              f"{os.path.join(model_path, split, f'ours_{iteration}')}")
+              f"{split_render_dir(model_path, split, iteration)}")
     return results

@@ -356,22 +356,22 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     timer = StageTimer(checkpoint["timings"] if checkpoint else None)
     log_rows: list[dict] = list(checkpoint["log"]) if checkpoint else []
     os.makedirs(config.model_path, exist_ok=True)
-    model_folder.write_cfg_args(folder.file("cfg_args"), config.cfg_args())
+    model_folder.write_cfg_args(folder.file(model_layout.CFG_ARGS_FILE), config.cfg_args())
     views = [(os.path.splitext(os.path.basename(p))[0], c) for dataset in
              ([inputs.test] if inputs.test is not None else []) + [inputs.train]
              for p, c in zip(dataset.image_paths, dataset.cameras)]
-    model_folder.write_cameras_json(folder.file("cameras.json"), views)
+    model_folder.write_cameras_json(folder.file(model_layout.CAMERAS_FILE), views)
     summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
     if checkpoint is None:
         grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)
-        model_folder.write_sdf(folder.file("sdf.npz"), sdf, hull_sdf, grid.origin, grid.voxel)
+        model_folder.write_sdf(folder.file(model_layout.SDF_FILE), sdf, hull_sdf, grid.origin, grid.voxel)
         with timer.stage("marching_cubes"):
             mesh = extract_mesh(sdf, grid, config.min_component,
-                                source=f"{folder.file('sdf.npz')} (--sdf-res {config.sdf_res})")
+                                source=f"{folder.file(model_layout.SDF_FILE)} (--sdf-res {config.sdf_res})")
             if inputs.train.masks is not None or inputs.geometry is not None:
                 summary["hull_volume"] = float(extract_mesh(hull_sdf, grid, config.min_component,
                                                             "visual hull").volume)
-        model_folder.write_mesh(folder.file("mesh.ply"), mesh)
+        model_folder.write_mesh(folder.file(model_layout.MESH_FILE), mesh)
         summary["mesh_volume"] = float(mesh.volume)
         with timer.stage("particles"):
             particles = sample_particles(mesh, sdf.to(device), grid, config.n_surface, config.nv,
@@ -409,8 +409,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
                     "total_rest_volume": float(particles.volume.sum()),
                     "surface_spacing": particles.surface_spacing,
                     "timings": timer.as_dict()})
-    model_folder.write_log_csv(folder.file("train_log.csv"), log_rows)
-    model_folder.write_json(folder.file("timings.json"), summary)
+    model_folder.write_log_csv(folder.file(model_layout.TRAIN_LOG_FILE), log_rows)
+    model_folder.write_json(folder.file(model_layout.TIMINGS_FILE), summary)
     test_text = (f", test PSNR {summary['test']['psnr']:.2f} dB (SSIM {summary['test']['ssim']:.3f},"
                  f" {summary['test']['views']} views)" if "test" in summary else "")
     print(f"[train] {config.model_path}: train PSNR {summary['train']['psnr']:.2f} dB{test_text}; "
@@ -437,7 +437,7 @@ def _fit(config: TrainConfig, inputs: Inputs, folder: model_folder.OutputFolder,
                                 particles.normal[surface])
         state = new_fit_state(particles.position[surface], colors, settings, spatial_scale,
                               device)
-        model_folder.write_input_ply(folder.file("input.ply"), particles.position[surface],
+        model_folder.write_input_ply(folder.file(model_layout.INPUT_PLY), particles.position[surface],
                                  particles.normal[surface], colors)
     else:
         state = _restore_fit(checkpoint, settings, spatial_scale, device)

@@ -31,8 +31,8 @@ def resolve_views(spec: str, sim: Simulation, frames: Sequence[int],
     if spec in ("train", "test"):
         trained = [obj for obj in sim.scene.objects if obj.model is not None and obj.model.is_dir()]
         if not trained:
-            raise ViewSpecError(f"--views {spec}: no object of {SimLayout(sim.root).scene_path} has a "
-                                "trained model folder")
+            raise ViewSpecError(f"--views {spec}: no object of {SimLayout(sim.root).scene_path} "
+                                "has a trained model folder")
         from fracture_gs.mpm.scene import rotation_matrix_xyz
 
         obj = trained[0]
