@@ -48,7 +48,7 @@ from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.camera import Camera
 from fracture_gs.render.frame_gaussians import SceneGaussians
-from fracture_gs.io.sim_reader import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 
 
 def silhouette(points: torch.Tensor, camera: Camera, spacing: float,

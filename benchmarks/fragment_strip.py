@@ -24,7 +24,7 @@ import torch  # noqa: E402
 
 from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
 from fracture_gs.io.sim_layout import PARTICLES_FILE, frame_file_name  # noqa: E402
-from fracture_gs.io.sim_reader import OutputError, load_frame  # noqa: E402
+from fracture_gs.folders.sim_reader import OutputError, load_frame  # noqa: E402
 from fracture_gs.io.atomic import atomic_write  # noqa: E402
 from fracture_gs.viewer.splats import piece_colours  # noqa: E402
 

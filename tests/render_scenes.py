@@ -17,7 +17,7 @@ import yaml
 from fracture_gs.pipeline.simulate import run_simulation
 from fracture_gs.config.scene import parse_scene
 from fracture_gs.gaussians import GaussianModel
-from fracture_gs.io.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 
 SPACING = 0.02
 

@@ -19,14 +19,14 @@ from fracture_gs.cli import render as render_cli
 from fracture_gs.cli import simulate as simulate_cli
 from fracture_gs.cli.train import main as train_main
 from fracture_gs.config.scene import parse_scene
-from fracture_gs.experiments.runner import SimJob, run_jobs
+from fracture_gs.pipeline.experiments.runner import SimJob, run_jobs
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.manifest import Manifest
-from fracture_gs.io.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 from fracture_gs.io.model_layout import latest_iteration, latest_point_cloud
 from fracture_gs.io.sim_layout import LOCK_FILE, SimLayout
-from fracture_gs.io.sim_reader import Simulation, SimulationError
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.pipeline.simulate import run_simulation
 
 ROOT = Path(__file__).resolve().parents[1]

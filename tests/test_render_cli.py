@@ -100,7 +100,7 @@ def test_export_ply_renders_like_the_png(cracked_block: Path):
                      "--background", "black", "--export-ply"]) == 0
     out = cracked_block / "renders"
     from fracture_gs.render.sim_views import resolve_views
-    from fracture_gs.io.sim_reader import Simulation
+    from fracture_gs.folders.sim_reader import Simulation
 
     sim = Simulation.open(cracked_block)
     views = resolve_views("orbit:3", sim, sim.frames, (64, 64))

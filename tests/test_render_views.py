@@ -14,7 +14,7 @@ from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render import Camera
 from fracture_gs.render.views import (ViewSpecError, cameras_from_json, orbit_views,
                                       transform_camera)
-from fracture_gs.io.sim_reader import Simulation, SimulationError
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from render_scenes import block_scene, identity_frames, lattice_block, write_sim
 
 

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from fracture_gs.experiments.sim_eval import DEFAULT_RESOLUTION, EvaluationError
+from fracture_gs.pipeline.experiments.sim_eval import DEFAULT_RESOLUTION, EvaluationError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
 from fracture_gs.pipeline.evaluate import (EXPERIMENTS, MetricChoice, checked_eval_options,
@@ -104,7 +104,7 @@ def _metrics(args: argparse.Namespace) -> MetricChoice:
 
 def run_sim(args: argparse.Namespace) -> int:
     """``evaluate.py --sim``."""
-    from fracture_gs.experiments.sim_report import print_comparison
+    from fracture_gs.pipeline.experiments.sim_report import print_comparison
 
     device = _device(args.device)
     metrics, out_dir = evaluate_simulation(

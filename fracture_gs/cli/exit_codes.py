@@ -9,13 +9,13 @@ from collections.abc import Callable
 
 def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     """Call ``function`` and turn the project's input errors into exit statuses."""
-    from fracture_gs.experiments.runner import RunFailed
-    from fracture_gs.experiments.sim_eval import EvaluationError
+    from fracture_gs.pipeline.experiments.runner import RunFailed
+    from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
     from fracture_gs.io.device import DeviceError
     from fracture_gs.io.lock import FolderBusy
     from fracture_gs.io.model_layout import ModelError
     from fracture_gs.io.output_folder import OutputFolderError, os_error_line
-    from fracture_gs.io.sim_reader import SimulationError
+    from fracture_gs.folders.sim_reader import SimulationError
     from fracture_gs.render.views import ViewSpecError
 
     try:

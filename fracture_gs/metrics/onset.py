@@ -124,7 +124,7 @@ def fracture_window_from_simulation(sim_dir: str | Path, window: int = DEFAULT_W
     """:func:`fracture_window` for a ``simulate.py`` output folder (``diagnostics.csv`` for the
     counts, ``particles.npz`` for the particle count)."""
     from fracture_gs.io.sim_layout import SimLayout
-    from fracture_gs.io.sim_reader import read_diagnostics_csv
+    from fracture_gs.folders.sim_reader import read_diagnostics_csv
 
     sim_dir = Path(sim_dir)
     layout = SimLayout(sim_dir)

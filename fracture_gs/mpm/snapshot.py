@@ -1,4 +1,4 @@
-"""The arrays a simulation folder stores (:mod:`fracture_gs.io.sim_writer`), taken from the
+"""The arrays a simulation folder stores (:mod:`fracture_gs.folders.sim_writer`), taken from the
 solver's particles and state."""
 from __future__ import annotations
 

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 import yaml
 
-from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import Manifest, file_stamps, record_written_since
 from fracture_gs.io.model_layout import PARTICLES_FILE
@@ -268,7 +268,7 @@ def stage_scene(demo: Demo) -> None:
 
 def stage_simulate(demo: Demo) -> None:
     from fracture_gs.config.scene import load_scene
-    from fracture_gs.experiments.runner import SimJob, run_jobs
+    from fracture_gs.pipeline.experiments.runner import SimJob, run_jobs
 
     jobs = [SimJob.of(load_scene(demo.scene_path(mode)), demo.sim(mode))
             for mode in ("collision", "mls")]
@@ -303,7 +303,7 @@ def evaluation_specs(demo: Demo) -> list[RunSpec]:
 
 def stage_evaluate(demo: Demo) -> None:
     from fracture_gs.metrics.protocol import MetricNetworks
-    from fracture_gs.experiments.sim_report import evaluate_and_report
+    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report
 
     size = demo.profile.render_size
     options = EvalOptions(views=f"orbit:{demo.profile.views}", resolution=(size, size),
@@ -338,7 +338,7 @@ def stage_outputs(demo: Demo, stage: str) -> list[Path]:
 
 def run_demo(demo: Demo) -> dict:
     """Run (or skip) every stage, then print the comparison and where the results are."""
-    from fracture_gs.experiments.sim_report import print_comparison
+    from fracture_gs.pipeline.experiments.sim_report import print_comparison
 
     prepare_output_folder(demo.out, "--out")
     if demo.log_path.is_file() and not demo.force:

@@ -9,7 +9,7 @@ of a trained model, and the paper's experiments.
 * :func:`run_experiments` — the paper's experiments, each under ``<out>/<name>/``.
 
 Every check of the input happens before the first file is written; errors are
-:class:`~fracture_gs.experiments.sim_eval.EvaluationError` (one line).
+:class:`~fracture_gs.pipeline.experiments.sim_eval.EvaluationError` (one line).
 """
 from __future__ import annotations
 
@@ -20,14 +20,14 @@ from typing import Any
 
 import torch
 
-from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
-from fracture_gs.experiments.static_eval import StaticResult
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.pipeline.experiments.static_eval import StaticResult
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import file_stamps, record_written_since
 from fracture_gs.io.model_layout import EVALUATION_DIR, latest_point_cloud
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.io.sim_reader import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.metrics.protocol import MetricNetworks
 
 EXPERIMENTS = ("ablation", "hardening", "nv-sweep", "momentum", "energy")
@@ -72,7 +72,7 @@ def evaluate_simulation(sim: Path, *, options: EvalOptions, metrics: MetricChoic
                         progress: bool = True) -> tuple[dict[str, Any], Path]:
     """Evaluate the run in ``sim`` (module docstring); returns the metrics and the folder they
     were written to (``<sim>/evaluation`` unless ``out``)."""
-    from fracture_gs.experiments.sim_report import evaluate_and_report
+    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report
 
     if mls and not compare:
         raise EvaluationError("--mls: only used with --compare")
@@ -103,7 +103,7 @@ def evaluate_trained_model(model: Path, *, split: str, device: torch.device,
     """PSNR / SSIM / LPIPS of a trained model's ``split`` views; writes ``metrics.json``,
     ``report.md`` and ``strip.png`` into ``out`` (default ``<model>/evaluation``). Returns the
     result and that folder."""
-    from fracture_gs.experiments.static_eval import evaluate_model
+    from fracture_gs.pipeline.experiments.static_eval import evaluate_model
     from fracture_gs.report.markdown import table, write_report
     from fracture_gs.report.plots import frame_strip
 
@@ -141,7 +141,7 @@ def run_experiments(names: tuple[str, ...], *, out_root: Path, configs: Path, de
     """Run the experiments ``names`` (of :data:`EXPERIMENTS`), each under ``out_root/<name>``;
     ``force`` re-runs simulations that are complete (replacing only the files the tools wrote
     for them)."""
-    from fracture_gs.experiments.suites import ExperimentSettings, run_experiment
+    from fracture_gs.pipeline.experiments.suites import ExperimentSettings, run_experiment
 
     if workers < 1:
         raise EvaluationError(f"--workers {workers}: must be >= 1")

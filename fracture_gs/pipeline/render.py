@@ -24,7 +24,7 @@ from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import Manifest
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.io.sim_reader import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.sim_views import resolve_views
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png

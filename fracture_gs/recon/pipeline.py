@@ -1,7 +1,7 @@
 """train.py's pipeline: dataset → SDF → mesh → particles → Gaussians → model folder.
 
 :func:`train` runs the stages in order, timing each (wall and process CPU seconds), and
-writes the model folder described in :mod:`fracture_gs.io.model_folder`. Inputs are checked
+writes the model folder described in :mod:`fracture_gs.folders.model_folder`. Inputs are checked
 before the folder is created; a problem found later (an empty mesh, a parts file that names
 no particle) removes what the run wrote. The Gaussian stage writes a checkpoint every
 ``checkpoint_every`` iterations (the newest one is kept), from which ``start_checkpoint``
@@ -24,7 +24,8 @@ from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, write_ply
 from fracture_gs.gaussians.model import PARAMETER_NAMES
-from fracture_gs.io import model_folder, model_layout
+from fracture_gs.folders import model_folder
+from fracture_gs.io import model_layout
 from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
 from fracture_gs.io.particles_ply import write_particles_ply
@@ -39,6 +40,7 @@ from fracture_gs.recon.meshing import extract_mesh
 from fracture_gs.recon.particles import ParticleSet, sample_particles
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
 from fracture_gs.recon.timing import StageTimer
+from fracture_gs.render.camera import cameras_json_entry
 
 ITERATIONS_DEFAULT = 3000
 # Learning rates of the Gaussian stage: 3DGS's (FitSettings' defaults, for 30k iterations) and
@@ -360,7 +362,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     views = [(os.path.splitext(os.path.basename(p))[0], c) for dataset in
              ([inputs.test] if inputs.test is not None else []) + [inputs.train]
              for p, c in zip(dataset.image_paths, dataset.cameras)]
-    model_folder.write_cameras_json(folder.file(model_layout.CAMERAS_FILE), views)
+    model_folder.write_json(folder.file(model_layout.CAMERAS_FILE),
+                            [cameras_json_entry(i, name, camera) for i, (name, camera) in enumerate(views)])
     summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
     if checkpoint is None:
         grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)

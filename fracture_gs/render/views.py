@@ -158,7 +158,7 @@ def transform_camera(camera: Camera, rotation: np.ndarray, scale: float,
 
 def dataset_source(model_dir: Path) -> Path:
     """The dataset folder a model was trained on (``source_path`` in its ``cfg_args``)."""
-    from fracture_gs.io.model_folder import read_cfg_args
+    from fracture_gs.folders.model_folder import read_cfg_args
 
     cfg = model_dir / CFG_ARGS_FILE
     if not cfg.is_file():

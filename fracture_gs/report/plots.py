@@ -14,7 +14,7 @@ import numpy as np
 
 from fracture_gs.io.atomic import write_bytes_atomic
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.io.sim_reader import read_diagnostics_csv
+from fracture_gs.folders.sim_reader import read_diagnostics_csv
 
 _STYLES = ("--", ":", "-.", (0, (5, 1)))
 _AXES = {"x": "tab:red", "y": "tab:green", "z": "tab:blue"}

@@ -24,7 +24,6 @@ from fracture_gs.io.manifest import remove_written_tree
 from fracture_gs.io.model_layout import (EVALUATION_DIR, LOCK_NAME, PARTICLES_FILE, PARTICLES_JSON,
                                          RENDER_SPLITS, ModelError, iterations, point_cloud_path)
 from fracture_gs.io.particles_ply import write_particles_ply
-from fracture_gs.render.camera import Camera
 
 def write_text(path: str, text: str) -> None:
     """Write a text file of the folder (atomically)."""
@@ -93,25 +92,6 @@ def read_cfg_args(path: str) -> dict[str, Any]:
         return {keyword.arg: ast.literal_eval(keyword.value) for keyword in call.keywords}
     except (SyntaxError, ValueError) as error:
         raise ValueError(f"{path}: not a cfg_args file ({error})") from None
-
-
-# ----------------------------------------------------------------------------- cameras
-
-
-def camera_entry(index: int, name: str, camera: Camera) -> dict[str, Any]:
-    """One entry of 3DGS's cameras.json (camera-to-world position and rotation)."""
-    camera_to_world = torch.linalg.inv(camera.world_to_camera.double()).numpy()
-    return {"id": index, "img_name": name, "width": camera.width, "height": camera.height,
-            "position": camera_to_world[:3, 3].tolist(),
-            "rotation": [row.tolist() for row in camera_to_world[:3, :3]],
-            "fy": camera.fy, "fx": camera.fx}
-
-
-def write_cameras_json(path: str, views: list[tuple[str, Camera]]) -> None:
-    write_json(path, [camera_entry(i, name, camera) for i, (name, camera) in enumerate(views)])
-
-
-# ----------------------------------------------------------------------------- particles
 
 
 def write_input_ply(path: str, position: np.ndarray, normal: np.ndarray,

@@ -29,7 +29,7 @@ import yaml
 from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
                                    write_text_atomic)
 from fracture_gs.io.manifest import Manifest, remove_written_tree
-from fracture_gs.io.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
+from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
 from fracture_gs.io.sim_layout import SimLayout
 
 _SOLVER_PREFIX = "solver/"

@@ -28,7 +28,7 @@ from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, 
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
 from fracture_gs.render.views import View
-from fracture_gs.io.sim_reader import Simulation, SimulationError
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 
 DEFAULT_RESOLUTION = (400, 400)
 _PNG_NAME = re.compile(r"^(\d{5,})\.png$")

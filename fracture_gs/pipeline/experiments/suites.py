@@ -25,10 +25,10 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
-from fracture_gs.experiments.runner import JobResult, SimJob, run_jobs
-from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.pipeline.experiments.runner import JobResult, SimJob, run_jobs
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.io.sim_reader import read_diagnostics_csv
+from fracture_gs.folders.sim_reader import read_diagnostics_csv
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.report.markdown import table, write_report
 from fracture_gs.report.plots import conservation_summary, energy_plot, line_plot, momentum_plot
@@ -109,7 +109,7 @@ def _write_json(path: Path, content: dict) -> None:
 
 def ablation(settings: ExperimentSettings) -> dict:
     """Fig. 5: ours (collision + FPGO) vs collision without FPGO vs mls without FPGO."""
-    from fracture_gs.experiments.sim_report import evaluate_and_report, print_comparison
+    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report, print_comparison
 
     config = load_experiment_scene(settings, "ablation")
     out = settings.out_root / "ablation"
@@ -191,7 +191,7 @@ def _object_spacings(sim_dir: Path) -> tuple[np.ndarray, list[float]]:
 def hardening(settings: ExperimentSettings) -> dict:
     """Fig. 9: the same drop with three initial hardening states α0."""
     from fracture_gs.metrics.onset import fracture_window_from_simulation
-    from fracture_gs.io.sim_reader import load_frame
+    from fracture_gs.folders.sim_reader import load_frame
 
     base = load_experiment_scene(settings, "hardening")
     out = settings.out_root / "hardening"
@@ -295,7 +295,7 @@ def coordinate_errors(run_dir: Path, reference_dir: Path) -> np.ndarray:
     surface samples)."""
     from scipy.spatial import cKDTree
 
-    from fracture_gs.io.sim_reader import load_frame
+    from fracture_gs.folders.sim_reader import load_frame
 
     def rest(path: Path) -> tuple[np.ndarray, np.ndarray]:
         with np.load(SimLayout(path).particles_path) as data:

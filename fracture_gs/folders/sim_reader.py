@@ -1,5 +1,5 @@
 """Reading a simulation folder (layout: :mod:`fracture_gs.io.sim_layout`; written by
-:mod:`fracture_gs.io.sim_writer`, SPEC §5.6).
+:mod:`fracture_gs.folders.sim_writer`, SPEC §5.6).
 
 ```python
 sim = Simulation.open("output/sims/two_spheres")     # SimulationError: one line naming the file
