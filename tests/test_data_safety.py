@@ -19,20 +19,21 @@ from fracture_gs.cli import render as render_cli
 from fracture_gs.cli import simulate as simulate_cli
 from fracture_gs.cli.train import main as train_main
 from fracture_gs.config.scene import parse_scene
-from fracture_gs.pipeline.experiments.runner import SimJob, run_jobs
+from fracture_gs.folders.model_folder import write_model_folder
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.manifest import Manifest
-from fracture_gs.folders.model_folder import write_model_folder
 from fracture_gs.io.model_layout import latest_iteration, latest_point_cloud
 from fracture_gs.io.sim_layout import LOCK_FILE, SimLayout
-from fracture_gs.folders.sim_reader import Simulation, SimulationError
+from fracture_gs.pipeline.experiments.runner import SimJob, run_jobs
 from fracture_gs.pipeline.simulate import run_simulation
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "synthetic_fixture"
-TINY_TRAIN = ["--sdf-res", "24", "--sdf-iters", "16", "--iterations", "24", "--n-surface", "300",
-              "--nv", "2", "--particle-res", "10", "--sdf-rays", "256", "--quiet"]
+# the smallest run that writes every file of a model folder (visual hull only, 6 iterations)
+TINY_TRAIN = ["--sdf-res", "16", "--sdf-iters", "0", "--iterations", "6", "--n-surface", "100",
+              "--nv", "1", "--particle-res", "6", "--quiet"]
 
 
 def small_scene(name: str = "small", frames: int = 3) -> dict[str, Any]:
@@ -95,8 +96,8 @@ def test_retraining_leaves_only_the_new_iteration(tmp_path: Path) -> None:
     assert latest_iteration(str(model)) == 30000
 
     assert train_main(["-s", str(FIXTURE), "-m", str(model), *TINY_TRAIN]) == 0
-    assert latest_iteration(str(model)) == 24
-    assert latest_point_cloud(model) == model / "point_cloud" / "iteration_24" / "point_cloud.ply"
+    assert latest_iteration(str(model)) == 6
+    assert latest_point_cloud(model) == model / "point_cloud" / "iteration_6" / "point_cloud.ply"
     assert not (model / "point_cloud" / "iteration_30000" / "point_cloud.ply").exists()
     assert not (old_renders / "renders" / "00000.png").exists()
     assert_survive(user)

@@ -12,9 +12,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fracture_gs.cli.exit_codes import run_guarded
-from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.pipeline.demo import PROFILES, Demo, run_demo
+from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 
 
 def build_parser() -> argparse.ArgumentParser:

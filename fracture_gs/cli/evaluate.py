@@ -18,12 +18,15 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from fracture_gs.pipeline.experiments.sim_eval import DEFAULT_RESOLUTION, EvaluationError
+import torch
+
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
 from fracture_gs.pipeline.evaluate import (EXPERIMENTS, MetricChoice, checked_eval_options,
                                            evaluate_simulation, evaluate_trained_model,
                                            run_experiments)
+from fracture_gs.pipeline.experiments.sim_eval import (DEFAULT_RESOLUTION, EvalOptions,
+                                                      EvaluationError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,15 +88,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _device(name: str | None):
-    """The --device choice as an EvaluationError when unusable."""
+def _device(name: str | None) -> torch.device:
+    """The --device choice (EvaluationError when it cannot be used)."""
     try:
         return resolve_device(name)
     except DeviceError as exc:
         raise EvaluationError(str(exc)) from None
 
 
-def _options(args: argparse.Namespace, device):
+def _options(args: argparse.Namespace, device: torch.device) -> EvalOptions:
     return checked_eval_options(args.views, tuple(args.resolution), args.window, args.background,
                                 device, args.backend)
 

@@ -15,11 +15,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.io.model_layout import ModelError
 from fracture_gs.io.output_folder import OutputFolderError, os_error_line
-from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.pipeline.render import RenderOptions, render_simulation
 from fracture_gs.render.views import ViewSpecError
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import torch
 
 from fracture_gs.config.scene import SceneError, load_scene
+from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.io.lock import FolderBusy
 from fracture_gs.io.output_folder import os_error_line
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.mpm.types import SimulationBlowUp
 from fracture_gs.pipeline.simulate import InvalidInput, run_simulation
 

@@ -1,5 +1,5 @@
 """``train.py``: the command line of the train stage (:mod:`fracture_gs.pipeline.train`):
-reconstruct an object from posed, masked images (SPEC §4).
+reconstruct an object from posed, masked images.
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line on stderr naming the
 file or flag, nothing left half-written in the model folder), 130 when interrupted (the last

@@ -23,10 +23,10 @@ import threading
 from collections.abc import Sequence
 
 from fracture_gs.cli.render import InvalidInput
+from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.io.model_layout import ModelError
-from fracture_gs.folders.sim_reader import SimulationError
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:

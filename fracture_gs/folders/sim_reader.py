@@ -1,5 +1,5 @@
 """Reading a simulation folder (layout: :mod:`fracture_gs.io.sim_layout`; written by
-:mod:`fracture_gs.folders.sim_writer`, SPEC §5.6).
+:mod:`fracture_gs.folders.sim_writer`).
 
 ```python
 sim = Simulation.open("output/sims/two_spheres")     # SimulationError: one line naming the file
@@ -158,7 +158,8 @@ def _check_one_run(layout: SimLayout, frames: list[int]) -> None:
         foreign = [f for f in frames if layout.frame_path(f) not in manifest]
         if foreign:
             raise SimulationError(f"{layout.frame_path(foreign[0])} was not written by the run in "
-                                  f"{layout.root} (frames of two runs are mixed): simulate it again")
+                                  f"{layout.root} (frames of two runs are mixed): simulate it "
+                                  "again")
 
 
 class Simulation:

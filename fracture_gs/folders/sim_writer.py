@@ -26,10 +26,10 @@ import numpy as np
 import torch
 import yaml
 
+from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
 from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
                                    write_text_atomic)
 from fracture_gs.io.manifest import Manifest, remove_written_tree
-from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
 from fracture_gs.io.sim_layout import SimLayout
 
 _SOLVER_PREFIX = "solver/"

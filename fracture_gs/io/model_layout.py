@@ -1,4 +1,4 @@
-"""The ``-m`` model folder of train.py (3DGS-compatible, SPEC §4) and its files.
+"""The ``-m`` model folder of train.py (3DGS-compatible) and its files.
 
 Layout::
 

@@ -1,4 +1,4 @@
-"""``particles.ply``: the particles of a trained object (SPEC §4), written by train.py and read
+"""``particles.ply``: the particles of a trained object, written by train.py and read
 by simulate.py.
 
 One ``vertex`` element, binary little-endian: ``x y z volume`` (float32), ``is_surface``

@@ -25,12 +25,12 @@ import numpy as np
 import torch
 import yaml
 
-from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import Manifest, file_stamps, record_written_since
 from fracture_gs.io.model_layout import PARTICLES_FILE
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import EVALUATION_DIR, SimLayout
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.pipeline.render import TIMING_FILE
 from fracture_gs.recon.pipeline import TrainConfig
 
@@ -132,8 +132,9 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
         "name": name if mode == "collision" else f"{name}_mls",
         "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid},
         "frames": frames, "frame_dt": frame_dt, "gravity": [0, 0, -9.8],
-        # Ours opens cracks inside objects (issue 14), so the torn table top comes apart instead of
-        # hanging together by the grid; the mls baseline (PhysGaussian / GIC style) has no such thing.
+        # Ours opens cracks inside objects (contact.fragments), so the torn table top comes apart
+        # instead of hanging together by the grid; the mls baseline (PhysGaussian / GIC style) has
+        # no such thing.
         "contact": {"mode": mode, "strength": 1.0, "friction": 0.1, "fragments": mode == "collision"},
         "cfl": 0.3,
         "boundaries": [{"type": "ground", "height": ground, "friction": 0.5},

@@ -1,4 +1,4 @@
-"""The evaluate stage (SPEC §7): self-referenced fracture metrics of simulations, static metrics
+"""The evaluate stage: self-referenced fracture metrics of simulations, static metrics
 of a trained model, and the paper's experiments.
 
 * :func:`evaluate_simulation` — fracture onset, reference frame, window and the
@@ -20,15 +20,15 @@ from typing import Any
 
 import torch
 
-from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
-from fracture_gs.pipeline.experiments.static_eval import StaticResult
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import file_stamps, record_written_since
 from fracture_gs.io.model_layout import EVALUATION_DIR, latest_point_cloud
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.metrics.protocol import MetricNetworks
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.pipeline.experiments.static_eval import StaticResult
 
 EXPERIMENTS = ("ablation", "hardening", "nv-sweep", "momentum", "energy")
 

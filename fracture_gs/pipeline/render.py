@@ -1,4 +1,4 @@
-"""The render stage: a simulation's frames as Gaussian splats, with FPGO (SPEC §6.2–6.3).
+"""The render stage: a simulation's frames as Gaussian splats, with FPGO filling fracture surfaces.
 
 Renders every frame from every view into ``<sim>/renders/`` (``renders_nofpgo/`` without
 FPGO): ``<view>/00000.png``, ``video_<view>.mp4`` (H.264), ``preview.gif`` (one view),
@@ -19,12 +19,12 @@ from typing import TextIO
 import numpy as np
 import torch
 
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.manifest import Manifest
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
-from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.sim_views import resolve_views
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png

@@ -15,11 +15,11 @@ import torch
 from tqdm import tqdm
 
 from fracture_gs.data import Dataset, load_dataset
+from fracture_gs.folders.model_folder import read_cfg_args
 from fracture_gs.gaussians import GaussianModel, read_ply
 from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
 from fracture_gs.io.manifest import Manifest
-from fracture_gs.folders.model_folder import read_cfg_args
 from fracture_gs.io.model_layout import (CFG_ARGS_FILE, GROUND_TRUTH_DIR, POINT_CLOUD_DIR,
                                          RENDERED_DIR, latest_iteration, point_cloud_path,
                                          split_render_dir, view_image_name)

@@ -1,5 +1,5 @@
 """The simulate stage: a scene through the Collision-MPM solver into a simulation folder
-(SPEC §5; layout :mod:`fracture_gs.io.sim_layout`).
+(layout :mod:`fracture_gs.io.sim_layout`).
 
 The folder is locked while a run writes it (a second run into it stops with
 :class:`~fracture_gs.io.lock.FolderBusy`); a fresh run over an earlier one first removes the
@@ -18,11 +18,11 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError
+from fracture_gs.folders.sim_reader import OutputError, load_frame, read_npz
+from fracture_gs.folders.sim_writer import SimulationOutput, diagnostics_row
 from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.output_folder import OutputFolderError, prepare_output_folder
 from fracture_gs.io.sim_layout import LOCK_FILE
-from fracture_gs.folders.sim_reader import OutputError, load_frame, read_npz
-from fracture_gs.folders.sim_writer import SimulationOutput, diagnostics_row
 from fracture_gs.mpm.memory import check_scene_memory
 from fracture_gs.mpm.scene import BuiltScene, build_scene
 from fracture_gs.mpm.snapshot import frame_arrays, particle_arrays

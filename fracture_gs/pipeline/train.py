@@ -1,4 +1,4 @@
-"""The train stage: a model folder from a dataset (SPEC §4; the reconstruction itself is
+"""The train stage: a model folder from a dataset (the reconstruction itself is
 :func:`fracture_gs.recon.pipeline.train`)."""
 from __future__ import annotations
 

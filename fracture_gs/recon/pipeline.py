@@ -22,17 +22,17 @@ from tqdm import tqdm
 
 from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
+from fracture_gs.folders import model_folder
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, write_ply
 from fracture_gs.gaussians.model import PARAMETER_NAMES
-from fracture_gs.folders import model_folder
 from fracture_gs.io import model_layout
 from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
 from fracture_gs.io.particles_ply import write_particles_ply
+from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.errors import ReconstructionError
 from fracture_gs.recon.gaussian_fit import (FitSettings, FitState, evaluate_views,
                                             fit_gaussians, make_optimizer, new_fit_state)
-from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.grid import VoxelGrid
 from fracture_gs.recon.hull import visual_hull
 from fracture_gs.recon.imported import bind_to_nearest, iteration_of, opacity_field_sdf
@@ -363,14 +363,16 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
              ([inputs.test] if inputs.test is not None else []) + [inputs.train]
              for p, c in zip(dataset.image_paths, dataset.cameras)]
     model_folder.write_json(folder.file(model_layout.CAMERAS_FILE),
-                            [cameras_json_entry(i, name, camera) for i, (name, camera) in enumerate(views)])
+                            [cameras_json_entry(index, name, camera)
+                             for index, (name, camera) in enumerate(views)])
     summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
     if checkpoint is None:
         grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)
-        model_folder.write_sdf(folder.file(model_layout.SDF_FILE), sdf, hull_sdf, grid.origin, grid.voxel)
+        sdf_path = folder.file(model_layout.SDF_FILE)
+        model_folder.write_sdf(sdf_path, sdf, hull_sdf, grid.origin, grid.voxel)
         with timer.stage("marching_cubes"):
             mesh = extract_mesh(sdf, grid, config.min_component,
-                                source=f"{folder.file(model_layout.SDF_FILE)} (--sdf-res {config.sdf_res})")
+                                source=f"{sdf_path} (--sdf-res {config.sdf_res})")
             if inputs.train.masks is not None or inputs.geometry is not None:
                 summary["hull_volume"] = float(extract_mesh(hull_sdf, grid, config.min_component,
                                                             "visual hull").volume)

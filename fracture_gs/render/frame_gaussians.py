@@ -35,14 +35,14 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import ObjectConfig
+from fracture_gs.folders.model_folder import estimated_spacing, model_spacing
+from fracture_gs.folders.sim_reader import SimFrame, Simulation
 from fracture_gs.fracture.fpgo import (FPGOSettings, FPGOStats, FractureParticles, apply_fpgo,
                                        contiguous_span, rest_neighbour_tables)
 from fracture_gs.fracture.ops import deform_gaussians
 from fracture_gs.fracture.spatial import k_nearest
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, rgb_to_sh_dc, write_ply
-from fracture_gs.folders.model_folder import estimated_spacing, model_spacing
 from fracture_gs.io.model_layout import ModelError, latest_point_cloud
-from fracture_gs.folders.sim_reader import SimFrame, Simulation
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render.camera import Camera
 from fracture_gs.render.rasterize import rasterize

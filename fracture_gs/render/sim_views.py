@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.folders.sim_reader import Simulation
+from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.render.views import (View, ViewSpecError, bounds_sphere, cameras_from_json,
                                       dataset_views, orbit_views)
 

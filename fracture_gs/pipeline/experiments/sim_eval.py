@@ -22,13 +22,13 @@ import cv2
 import numpy as np
 import torch
 
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
 from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
 from fracture_gs.render.views import View
-from fracture_gs.folders.sim_reader import Simulation, SimulationError
 
 DEFAULT_RESOLUTION = (400, 400)
 _PNG_NAME = re.compile(r"^(\d{5,})\.png$")

@@ -14,12 +14,12 @@ import cv2
 import numpy as np
 import torch
 
-from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.io.model_layout import (GROUND_TRUTH_DIR, RENDERED_DIR, latest_iteration,
                                          split_render_dir)
 from fracture_gs.metrics.image import psnr, ssim
 from fracture_gs.metrics.protocol import MetricNetworks
+from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 
 
 @dataclass

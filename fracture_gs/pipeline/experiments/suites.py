@@ -25,11 +25,11 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
-from fracture_gs.pipeline.experiments.runner import JobResult, SimJob, run_jobs
-from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
-from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.folders.sim_reader import read_diagnostics_csv
 from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.pipeline.experiments.runner import JobResult, SimJob, run_jobs
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.report.markdown import table, write_report
 from fracture_gs.report.plots import conservation_summary, energy_plot, line_plot, momentum_plot
 
@@ -311,7 +311,8 @@ def coordinate_errors(run_dir: Path, reference_dir: Path) -> np.ndarray:
     run, reference = SimLayout(run_dir), SimLayout(reference_dir)
     errors = [np.abs(load_frame(run.frame_path(f))["x"].astype(np.float64)
                      - load_frame(reference.frame_path(f))["x"].astype(np.float64)[match]
-                     ).mean(axis=0) for f in run.frames_on_disk() if reference.frame_path(f).is_file()]
+                     ).mean(axis=0)
+              for f in run.frames_on_disk() if reference.frame_path(f).is_file()]
     return np.mean(errors, axis=0)
 
 
