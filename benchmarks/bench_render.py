@@ -35,9 +35,9 @@ from fracture_gs.config.scene import parse_scene
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.gaussians import GaussianModel
 from fracture_gs.render.frame_gaussians import SceneGaussians
-from fracture_gs.render.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 from fracture_gs.render.views import orbit_views
-from fracture_gs.sim.folder import SimFrame, SimParticles, Simulation
+from fracture_gs.folders.sim_reader import SimFrame, SimParticles, Simulation
 
 
 def sphere_particles(count: int) -> tuple[np.ndarray, np.ndarray, float]:

@@ -46,7 +46,7 @@ import torch
 import yaml
 
 from fracture_gs.gaussians import GaussianModel
-from fracture_gs.render.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 from fracture_gs.viewer.app import Viewer, ViewerOptions
 from fracture_gs.viewer.sources import SimulationSource
 

@@ -24,9 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fracture_gs.cli.simulate import run_simulation
+from fracture_gs.pipeline.simulate import run_simulation
 from fracture_gs.config.scene import parse_scene
-from fracture_gs.mpm.output import load_frame, read_diagnostics_csv
+from fracture_gs.folders.sim_reader import load_frame, read_diagnostics_csv
 
 RADIUS = 0.1
 GROUND = 0.05

@@ -22,11 +22,12 @@ from pathlib import Path
 
 import torch
 
-from fracture_gs.cli.render import add_interior_options, resolve_views
+from fracture_gs.cli.render import add_interior_options
+from fracture_gs.render.sim_views import resolve_views
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.frame_gaussians import SceneGaussians
-from fracture_gs.sim import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 
 
 def median_sizes(gaussians) -> dict[str, float]:

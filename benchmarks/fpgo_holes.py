@@ -42,12 +42,13 @@ import cv2
 import numpy as np
 import torch
 
-from fracture_gs.cli.render import add_interior_options, resolve_views
+from fracture_gs.cli.render import add_interior_options
+from fracture_gs.render.sim_views import resolve_views
 from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.camera import Camera
 from fracture_gs.render.frame_gaussians import SceneGaussians
-from fracture_gs.sim import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 
 
 def silhouette(points: torch.Tensor, camera: Camera, spacing: float,

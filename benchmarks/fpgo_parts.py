@@ -30,7 +30,7 @@ from pathlib import Path
 
 import torch
 
-from fracture_gs.experiments.sim_eval import EvaluationError, evaluation_views, open_simulation
+from fracture_gs.pipeline.experiments.sim_eval import EvaluationError, evaluation_views, open_simulation
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.metrics.paired import paired_differences

@@ -24,8 +24,8 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from fracture_gs.data.parts import load_part_spec  # noqa: E402
 from fracture_gs.gaussians import read_ply  # noqa: E402
-from fracture_gs.recon.model_io import (latest_iteration, point_cloud_path,  # noqa: E402
-                                        read_particles_ply)
+from fracture_gs.io.model_layout import latest_iteration, point_cloud_path  # noqa: E402
+from fracture_gs.io.particles_ply import read_particles_ply  # noqa: E402
 from fracture_gs.recon.quality import (chamfer_distance, part_agreement,  # noqa: E402
                                        spacing_variation)
 

@@ -14,10 +14,10 @@ import numpy as np
 import torch
 import yaml
 
-from fracture_gs.cli.simulate import run_simulation
+from fracture_gs.pipeline.simulate import run_simulation
 from fracture_gs.config.scene import parse_scene
 from fracture_gs.gaussians import GaussianModel
-from fracture_gs.render.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 
 SPACING = 0.02
 

@@ -14,7 +14,7 @@ import yaml
 
 from fracture_gs.cli import simulate as cli
 from fracture_gs.config.scene import parse_scene
-from fracture_gs.mpm.output import load_frame, read_diagnostics_csv
+from fracture_gs.folders.sim_reader import load_frame, read_diagnostics_csv
 from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.solver import CollisionMPM
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from fracture_gs.cli.simulate import create_solver
+from fracture_gs.pipeline.simulate import create_solver
 from fracture_gs.config import GroundConfig, load_scene
 from fracture_gs.mpm.scene import build_scene
 

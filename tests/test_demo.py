@@ -60,7 +60,7 @@ def test_demo_bad_options_are_one_line(tmp_path: Path) -> None:
 def test_demo_names_a_kept_dataset_made_at_other_sizes(tmp_path: Path) -> None:
     """A dataset left in the data folder is kept, but one made at other image sizes or view
     counts than the profile's is named as such (it trains a different model than the one docs/results.md reports)."""
-    from fracture_gs.cli.demo import PROFILES, _dataset_mismatch
+    from fracture_gs.pipeline.demo import PROFILES, _dataset_mismatch
 
     profile = PROFILES["default"]
     settings = {"width": profile.image_size, "height": profile.image_size, "n_train": profile.n_train,

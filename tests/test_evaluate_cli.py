@@ -15,12 +15,12 @@ import pytest
 import torch
 
 from fracture_gs.cli.evaluate import main as evaluate_main
-from fracture_gs.cli.render import RenderOptions, render_simulation
-from fracture_gs.cli.simulate import run_simulation
+from fracture_gs.pipeline.render import RenderOptions, render_simulation
+from fracture_gs.pipeline.simulate import run_simulation
 from fracture_gs.config.scene import load_scene
-from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.metrics.protocol import MetricNetworks
-from fracture_gs.report.sim_report import evaluate_and_report
+from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY_SCENE = ROOT / "tests" / "data" / "tiny_collision.yaml"

@@ -7,9 +7,9 @@ import errno
 import pytest
 
 from fracture_gs.cli.exit_codes import run_guarded
-from fracture_gs.cli.output_folder import OutputFolderError
-from fracture_gs.experiments.runner import RunFailed
-from fracture_gs.experiments.sim_eval import EvaluationError
+from fracture_gs.io.output_folder import OutputFolderError
+from fracture_gs.pipeline.experiments.runner import RunFailed
+from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 
 
 def _raising(exc: BaseException):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fracture_gs.cli.evaluate import main as evaluate_main
-from fracture_gs.experiments.runner import SimJob, is_complete, run_jobs
+from fracture_gs.pipeline.experiments.runner import SimJob, is_complete, run_jobs
 from fracture_gs.config.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]

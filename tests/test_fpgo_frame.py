@@ -13,7 +13,7 @@ from fracture_gs.gaussians import read_ply
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render import Camera, rasterize
 from fracture_gs.render.frame_gaussians import ModelError, SceneGaussians, read_frame_ply
-from fracture_gs.sim import SimFrame, Simulation
+from fracture_gs.folders.sim_reader import SimFrame, Simulation
 from render_scenes import (SPACING, block_scene, identity_frames, lattice_block, write_model,
                            write_sim)
 
@@ -373,7 +373,7 @@ def test_spacing_from_train_py_particles_json_is_the_sparser_set(tmp_path: Path)
     # train.py writes surface_spacing + interior_particle_size: d_c must connect the sparser set
     import json
 
-    from fracture_gs.render.model_folder import model_spacing
+    from fracture_gs.folders.model_folder import model_spacing
 
     path = tmp_path / "particles.json"
     path.write_text(json.dumps({"surface_spacing": 0.0075, "interior_particle_size": 0.02,

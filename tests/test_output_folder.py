@@ -1,5 +1,5 @@
 """Output folders that cannot be made are bad input: one ``error:`` line naming the option, exit
-status 2, before any work, and nothing left behind (fracture_gs/cli/output_folder.py)."""
+status 2, before any work, and nothing left behind (fracture_gs/io/output_folder.py)."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
+from fracture_gs.io.output_folder import OutputFolderError, os_error_line, prepare_output_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 

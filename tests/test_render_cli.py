@@ -13,6 +13,7 @@ import torch
 from PIL import Image
 
 from fracture_gs.cli import render as cli
+from fracture_gs.pipeline.render import TIMING_COLUMNS
 from fracture_gs.render import rasterize
 from fracture_gs.render.frame_gaussians import read_frame_ply
 from render_scenes import (SPACING, block_scene, identity_frames, lattice_block, simulate_quietly,
@@ -61,7 +62,7 @@ def test_renders_a_tiny_simulation_end_to_end(tiny_sim: Path, capsys):
     with open(out / "timing.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert [int(r["frame"]) for r in rows] == [0, 1]
-    assert set(cli.TIMING_COLUMNS) == set(rows[0])
+    assert set(TIMING_COLUMNS) == set(rows[0])
     assert all(int(r["gaussians"]) > 0 and float(r["raster_ms"]) > 0 for r in rows)
     assert not list(out.rglob(".*.tmp*"))                 # nothing half-written left
 
@@ -98,8 +99,8 @@ def test_export_ply_renders_like_the_png(cracked_block: Path):
     assert cli.main(["--sim", str(cracked_block), "--views", "orbit:3", "--resolution", "64", "64",
                      "--background", "black", "--export-ply"]) == 0
     out = cracked_block / "renders"
-    from fracture_gs.cli.render import resolve_views
-    from fracture_gs.sim import Simulation
+    from fracture_gs.render.sim_views import resolve_views
+    from fracture_gs.folders.sim_reader import Simulation
 
     sim = Simulation.open(cracked_block)
     views = resolve_views("orbit:3", sim, sim.frames, (64, 64))

@@ -14,7 +14,7 @@ from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render import Camera
 from fracture_gs.render.views import (ViewSpecError, cameras_from_json, orbit_views,
                                       transform_camera)
-from fracture_gs.sim import Simulation, SimulationError
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from render_scenes import block_scene, identity_frames, lattice_block, write_sim
 
 
@@ -99,7 +99,7 @@ def test_frame_selection(three_frames: Simulation):
 
 
 def test_train_and_test_views_are_the_dataset_cameras_moved_with_the_object(tmp_path: Path):
-    from fracture_gs.cli.render import resolve_views
+    from fracture_gs.render.sim_views import resolve_views
     from fracture_gs.data import load_dataset
     from render_scenes import write_model
 

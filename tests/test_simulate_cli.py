@@ -25,9 +25,11 @@ import torch
 import yaml
 
 from fracture_gs.cli import simulate as cli
+from fracture_gs.pipeline import simulate as stage
 from fracture_gs.config import load_scene
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
-from fracture_gs.mpm.output import diagnostics_columns, load_frame, read_diagnostics_csv
+from fracture_gs.folders.sim_writer import diagnostics_columns
+from fracture_gs.folders.sim_reader import load_frame, read_diagnostics_csv
 from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
 
 REPO = Path(__file__).resolve().parents[1]
@@ -147,7 +149,7 @@ class BallisticSolver:
 @pytest.fixture
 def ballistic(monkeypatch: pytest.MonkeyPatch) -> None:
     """Run the driver on the BallisticSolver (materials are not needed either)."""
-    monkeypatch.setattr(cli, "create_solver", lambda built, device, backend: BallisticSolver(
+    monkeypatch.setattr(stage, "create_solver", lambda built, device, backend: BallisticSolver(
         built.particles, built.materials, built.domain, gravity=built.gravity, cfl=built.cfl,
         object_names=built.object_names, device=device))
 
@@ -632,7 +634,7 @@ def test_write_failure_mid_run_exits_1_with_one_line(
     """A full disk while writing frame 3: exit 1, the file and the reason, frames 0..2 kept."""
     import errno
 
-    from fracture_gs.mpm import output as output_module
+    from fracture_gs.folders import sim_writer as output_module
     original = output_module.save_npz_atomic
 
     def disk_full_at_frame_3(path: Path, arrays: Any) -> None:

@@ -24,7 +24,8 @@ from fracture_gs.cli.train import main as train_main
 from fracture_gs.gaussians import GaussianModel, read_ply, write_ply
 from fracture_gs.gaussians.ply import ply_property_names
 from fracture_gs.recon.hull import VisualHull
-from fracture_gs.recon.model_io import read_particles_ply, run_lock
+from fracture_gs.io.particles_ply import read_particles_ply
+from fracture_gs.folders.model_folder import run_lock
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "synthetic_fixture"

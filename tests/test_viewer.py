@@ -23,7 +23,7 @@ from fracture_gs.cli import render as render_cli
 from fracture_gs.cli import view as view_cli
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.sh import SH_C0
-from fracture_gs.sim.folder import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_port_free
 from headless_browser import WebsocketProbe, wait_for
 from fracture_gs.viewer.cache import FrameCache

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from fracture_gs.gaussians import GaussianModel
-from fracture_gs.render.model_folder import write_model_folder
+from fracture_gs.folders.model_folder import write_model_folder
 
 
 def even_surface_samples(mesh, spacing: float, seed: int) -> np.ndarray:

@@ -9,16 +9,19 @@ from collections.abc import Callable
 
 def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     """Call ``function`` and turn the project's input errors into exit statuses."""
-    from fracture_gs.cli.output_folder import OutputFolderError, os_error_line
-    from fracture_gs.experiments.runner import RunFailed
-    from fracture_gs.experiments.sim_eval import EvaluationError
-    from fracture_gs.render.frame_gaussians import ModelError
+    from fracture_gs.pipeline.experiments.runner import RunFailed
+    from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
+    from fracture_gs.io.device import DeviceError
+    from fracture_gs.io.lock import FolderBusy
+    from fracture_gs.io.model_layout import ModelError
+    from fracture_gs.io.output_folder import OutputFolderError, os_error_line
+    from fracture_gs.folders.sim_reader import SimulationError
     from fracture_gs.render.views import ViewSpecError
-    from fracture_gs.sim.folder import SimulationError
 
     try:
         status = function()
-    except (EvaluationError, ModelError, SimulationError, ViewSpecError, OutputFolderError) as exc:
+    except (EvaluationError, ModelError, SimulationError, ViewSpecError, OutputFolderError,
+            DeviceError, FolderBusy) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:

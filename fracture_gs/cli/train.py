@@ -1,4 +1,5 @@
-"""``train.py``: reconstruct an object from posed, masked images (docs/training.md).
+"""``train.py``: the command line of the train stage (:mod:`fracture_gs.pipeline.train`):
+reconstruct an object from posed, masked images (docs/training.md).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line on stderr naming the
 file or flag, nothing left half-written in the model folder), 130 when interrupted (the last
@@ -11,13 +12,10 @@ import os
 import sys
 from typing import Sequence
 
-from fracture_gs.cli.output_folder import OutputFolderError, os_error_line, prepare_output_folder
-from fracture_gs.data import DatasetError
-from fracture_gs.data.loading import detect_format
-from fracture_gs.data.parts import PartSpecError
-from fracture_gs.gaussians import PlyFormatError
-from fracture_gs.recon.errors import ReconstructionError
-from fracture_gs.recon.pipeline import PRESETS, TrainConfig, train
+from fracture_gs.io.device import DEVICE_CHOICES
+from fracture_gs.io.output_folder import os_error_line
+from fracture_gs.pipeline.train import TRAIN_INPUT_ERRORS, train_model
+from fracture_gs.recon.pipeline import PRESETS, TrainConfig
 
 PRESET_KEYS = ("resolution", "iterations", "sdf_res", "sdf_iters", "n_surface", "nv",
                "particle_res", "n_interior", "feature_lr", "opacity_lr", "scaling_lr")
@@ -91,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  f"3DGS and --preset paper {PRESETS['paper'][flag]})")
     parser.add_argument("--sdf-rays", type=int, default=1024,
                         help="rays per SDF refinement iteration (default 1024)")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default="cpu")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser
@@ -126,12 +124,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point; returns the exit status."""
     args = build_parser().parse_args(argv)
     try:
-        config = config_from_args(args)
-        detect_format(config.source_path)  # a dataset before an output folder is made for it
-        prepare_output_folder(config.model_path, "-m/--model_path", keep=False)
-        train(config)
-    except (ReconstructionError, DatasetError, PartSpecError, PlyFormatError,
-            OutputFolderError) as error:
+        train_model(config_from_args(args))
+    except TRAIN_INPUT_ERRORS as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # writing the model failed (disk full, folder removed, ...)

@@ -22,10 +22,11 @@ import sys
 import threading
 from collections.abc import Sequence
 
-from fracture_gs.cli.render import InvalidInput, resolve_device
+from fracture_gs.cli.render import InvalidInput
+from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
-from fracture_gs.render.model_folder import ModelError
-from fracture_gs.sim.folder import SimulationError
+from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
+from fracture_gs.io.model_layout import ModelError
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -49,7 +50,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="start with FPGO off (the GUI toggles it)")
     parser.add_argument("--cache-frames", type=int, default=32,
                         help="prepared frames kept in memory (default 32)")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default=None,
+    parser.add_argument("--device", choices=DEVICE_CHOICES, default=None,
                         help="where frames are prepared (default: cuda when available)")
     parser.add_argument("--backend", choices=("auto", "cpp", "reference"), default="auto",
                         help="compiled kernels (cpp), PyTorch reference, or auto")
@@ -95,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             play_fps=args.fps, cache_frames=args.cache_frames, fpgo=args.fpgo,
             start_frame=args.frame))
         url = viewer.start()
-    except (SimulationError, ModelError, InvalidInput, PortInUseError) as exc:
+    except (SimulationError, ModelError, InvalidInput, PortInUseError, DeviceError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

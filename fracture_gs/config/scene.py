@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import yaml
 
+from fracture_gs.io.model_layout import PARTICLES_FILE
 from fracture_gs.materials import Material, material_from_yaml
 from fracture_gs.keys import SceneError
 from fracture_gs.keys import boolean as _boolean
@@ -52,7 +53,6 @@ from fracture_gs.keys import vec3 as _vec3
 CONTACT_MODES = ("collision", "mls")
 BOX_CONDITIONS = ("slip", "sticky", "separate")
 SHAPES = ("box", "sphere", "cylinder")
-PARTICLES_FILE = "particles.ply"
 
 # Defaults of optional keys (the paper's values where it gives them, Table 1; docs/scenes.md).
 DEFAULT_FRAMES = 100

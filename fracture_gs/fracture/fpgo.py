@@ -30,15 +30,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, NamedTuple
+from typing import Callable, NamedTuple
 
 import torch
 
 from fracture_gs.fracture.ops import LensEllipsoids, lens_ellipsoids
 from fracture_gs.fracture.spatial import fracture_neighbourhood, knn_within
-
-if TYPE_CHECKING:  # pragma: no cover
-    from fracture_gs.render.frame_gaussians import FrameGaussians
 
 InteriorDeform = Callable[[torch.Tensor], tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
 
@@ -222,10 +219,6 @@ def small_fragment_mask(x: torch.Tensor, particles: FractureParticles, settings:
     return neighbourhoods(x, nothing, particles, settings, active_objects, backend).hidden
 
 
-GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
-                    "object_id", "is_fpgo", "particle")
-
-
 def particle_spheres(rows: torch.Tensor, x: torch.Tensor, F_E: torch.Tensor,
                      means: torch.Tensor, particles: FractureParticles,
                      k_sigma: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -238,20 +231,21 @@ def particle_spheres(rows: torch.Tensor, x: torch.Tensor, F_E: torch.Tensor,
     return centre, radius
 
 
-def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
+def apply_fpgo(columns: dict[str, torch.Tensor], x: torch.Tensor, F_E: torch.Tensor,
                fractured: torch.Tensor, particles: FractureParticles, settings: FPGOSettings,
                deform_interior: InteriorDeform,
                backend: str = "auto") -> tuple[dict[str, torch.Tensor], FPGOStats]:
-    """The Gaussians to draw for one frame (a dict of the ``GAUSSIAN_COLUMNS``) and what FPGO did.
+    """The Gaussians to draw for one frame (columns as ``columns``) and what FPGO did.
 
-    ``gaussians`` are the frame's base Gaussians (row ``own_gaussian[p]`` is particle p's own);
+    ``columns`` are the frame's base Gaussians, a dict of FrameGaussians' columns
+    (:data:`fracture_gs.render.frame_gaussians.GAUSSIAN_COLUMNS`; row ``own_gaussian[p]`` is
+    particle p's own);
     ``deform_interior(rows)`` returns (means, covariances, view_rotations) of the interpolated
     Gaussians of the particles ``rows`` (isotropic spacing/2 at rest, following the particle).
     """
     started = time.perf_counter()
     detail: dict[str, float] = {}
     stats = FPGOStats(fractured=int(fractured.sum()))
-    columns = {name: getattr(gaussians, name) for name in GAUSSIAN_COLUMNS}
     if stats.fractured == 0:
         stats.milliseconds = (time.perf_counter() - started) * 1e3
         return columns, stats
@@ -277,9 +271,9 @@ def apply_fpgo(gaussians: "FrameGaussians", x: torch.Tensor, F_E: torch.Tensor,
     detail["interior"] = (time.perf_counter() - tick) * 1e3
 
     tick = time.perf_counter()
-    centre_i, radius_i = particle_spheres(pair_i, x, F_E, gaussians.means, particles,
+    centre_i, radius_i = particle_spheres(pair_i, x, F_E, columns["means"], particles,
                                           settings.k_sigma)
-    centre_j, radius_j = particle_spheres(pair_j, x, F_E, gaussians.means, particles,
+    centre_j, radius_j = particle_spheres(pair_j, x, F_E, columns["means"], particles,
                                           settings.k_sigma)
     lens = lens_ellipsoids(centre_i, radius_i, centre_j, radius_j, settings.k_sigma,
                            backend=backend)

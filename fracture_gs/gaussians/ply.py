@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 
 import numpy as np
 import plyfile
 import torch
 
 from fracture_gs.gaussians.model import GaussianModel, num_sh_coefficients
+from fracture_gs.io.atomic import atomic_write
 
 REST_COUNT_TO_DEGREE = {3 * (num_sh_coefficients(d) - 1): d for d in range(4)}  # 0 9 24 45
 REQUIRED_PROPERTIES = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
@@ -58,17 +58,7 @@ def write_ply(path: str, model: GaussianModel, normals: torch.Tensor | None = No
     for column, name in enumerate(names):
         vertices[name] = columns[:, column]
     ply = plyfile.PlyData([plyfile.PlyElement.describe(vertices, "vertex")], byte_order="<")
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=".tmp_", suffix=".ply", dir=folder)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            ply.write(stream)
-        os.replace(temporary, path)
-    except BaseException:
-        if os.path.exists(temporary):
-            os.remove(temporary)
-        raise
+    atomic_write(path, ply.write)
 
 
 def _columns(vertex: plyfile.PlyElement, names: list[str], path: str) -> np.ndarray:

@@ -123,10 +123,12 @@ def latched_fractured_counts(alpha_history: np.ndarray, alpha_threshold: float |
 def fracture_window_from_simulation(sim_dir: str | Path, window: int = DEFAULT_WINDOW) -> FractureWindow:
     """:func:`fracture_window` for a ``simulate.py`` output folder (``diagnostics.csv`` for the
     counts, ``particles.npz`` for the particle count)."""
-    from fracture_gs.mpm.output import read_diagnostics_csv
+    from fracture_gs.io.sim_layout import SimLayout
+    from fracture_gs.folders.sim_reader import read_diagnostics_csv
 
     sim_dir = Path(sim_dir)
-    csv_path, particles_path = sim_dir / "diagnostics.csv", sim_dir / "particles.npz"
+    layout = SimLayout(sim_dir)
+    csv_path, particles_path = layout.csv_path, layout.particles_path
     for path in (csv_path, particles_path):
         if not path.is_file():
             raise FileNotFoundError(f"{path}: not found (is {sim_dir} a simulate.py output folder?)")

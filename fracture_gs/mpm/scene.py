@@ -149,22 +149,18 @@ def load_particles_ply(path: str | Path, key_path: str = "model") -> ObjectParti
 
     Missing optional properties default to not-surface, part 0 and no Gaussian (-1).
     """
-    from plyfile import PlyData
+    from fracture_gs.io.particles_ply import ParticlesPlyError, read_particles_ply
 
     path = Path(path)
     try:
-        ply = PlyData.read(str(path))
-    except Exception as exc:  # plyfile raises several types for malformed files
-        raise SceneError(key_path, f"cannot read particles from '{path}': {exc}") from None
-    if not ply.elements:
-        raise SceneError(key_path, f"'{path}' has no elements")
-    element = ply["vertex"] if "vertex" in [e.name for e in ply.elements] else ply.elements[0]
-    names = {p.name for p in element.properties}
+        data = read_particles_ply(path)
+    except ParticlesPlyError as exc:
+        raise SceneError(key_path, str(exc)) from None
+    names = set(data) - {"comments"}
     for required in ("x", "y", "z", "volume"):
         if required not in names:
             raise SceneError(key_path, f"'{path}' lacks the particle property '{required}'")
-    data = element.data
-    n = len(data)
+    n = len(data["x"])
     if n == 0:
         raise SceneError(key_path, f"'{path}' holds no particles")
     x = np.stack([np.asarray(data[a], dtype=np.float64) for a in "xyz"], axis=1)

@@ -1,7 +1,7 @@
 """train.py's pipeline: dataset → SDF → mesh → particles → Gaussians → model folder.
 
 :func:`train` runs the stages in order, timing each (wall and process CPU seconds), and
-writes the model folder described in :mod:`fracture_gs.recon.model_io`. Inputs are checked
+writes the model folder described in :mod:`fracture_gs.folders.model_folder`. Inputs are checked
 before the folder is created; a problem found later (an empty mesh, a parts file that names
 no particle) removes what the run wrote. The Gaussian stage writes a checkpoint every
 ``checkpoint_every`` iterations (the newest one is kept), from which ``start_checkpoint``
@@ -21,13 +21,17 @@ from tqdm import tqdm
 
 from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
+from fracture_gs.folders import model_folder
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, write_ply
 from fracture_gs.gaussians.model import PARAMETER_NAMES
-from fracture_gs.recon import model_io
+from fracture_gs.io import model_layout
+from fracture_gs.io.atomic import atomic_path
+from fracture_gs.io.device import DeviceError, resolve_device
+from fracture_gs.io.particles_ply import write_particles_ply
+from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.errors import ReconstructionError
 from fracture_gs.recon.gaussian_fit import (FitSettings, FitState, evaluate_views,
                                             fit_gaussians, make_optimizer, new_fit_state)
-from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.grid import VoxelGrid
 from fracture_gs.recon.hull import visual_hull
 from fracture_gs.recon.imported import (bind_to_nearest, iteration_of, opacity_field_sdf,
@@ -36,6 +40,7 @@ from fracture_gs.recon.meshing import extract_mesh
 from fracture_gs.recon.particles import ParticleSet, sample_particles
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
 from fracture_gs.recon.timing import StageTimer
+from fracture_gs.render.camera import cameras_json_entry
 
 ITERATIONS_DEFAULT = 3000
 # Learning rates of the Gaussian stage: 3DGS's (FitSettings' defaults, for 30k iterations) and
@@ -167,7 +172,7 @@ def load_sdf(path: str) -> tuple[VoxelGrid, torch.Tensor, torch.Tensor]:
     if not os.path.isfile(path):
         raise ReconstructionError(f"{path}: file not found")
     try:
-        sdf, hull_sdf, origin, voxel = model_io.read_sdf(path)
+        sdf, hull_sdf, origin, voxel = model_folder.read_sdf(path)
     except ValueError as error:
         raise ReconstructionError(f"{path}: {error}") from None
     grid = VoxelGrid(origin, voxel, tuple(int(n) for n in sdf.shape))
@@ -201,8 +206,10 @@ def check_config(config: TrainConfig) -> None:
         if len(config.bbox) != 6 or not np.all(upper > lower):
             raise ReconstructionError(f"--bbox: {config.bbox} is not XMIN YMIN ZMIN XMAX YMAX "
                                       f"ZMAX with max > min")
-    if config.device == "cuda" and not torch.cuda.is_available():
-        raise ReconstructionError("--device: cuda was requested but no CUDA device is available")
+    try:
+        resolve_device(config.device)
+    except DeviceError as error:
+        raise ReconstructionError(str(error)) from None
 
 
 def _attribute(flag: str) -> str:
@@ -235,7 +242,7 @@ def save_checkpoint(path: str, state: FitState, particles: ParticleSet, part_id:
                "particles": asdict(particles), "part_id": part_id,
                "timings": timer.stages, "log": log_rows, "rng": rng.bit_generator.state,
                "summary": summary}
-    with model_io.atomic_path(path) as temporary:
+    with atomic_path(path) as temporary:
         torch.save(content, temporary)
 
 
@@ -337,9 +344,9 @@ def train(config: TrainConfig, out: TextIO | None = None) -> dict[str, Any]:
     inputs = read_inputs(config)
     if inputs.imported is not None:  # the model folder holds the imported Gaussians' degree
         config = replace(config, sh_degree=inputs.imported.sh_degree)
-    device = torch.device(config.device)
-    folder = model_io.OutputFolder(config.model_path)
-    with model_io.run_lock(config.model_path):
+    device = resolve_device(config.device)
+    folder = model_folder.OutputFolder(config.model_path)
+    with model_folder.run_lock(config.model_path):
         try:
             return _train_into(config, inputs, folder, device, out)
         except (ReconstructionError, DatasetError, PlyFormatError):
@@ -347,7 +354,7 @@ def train(config: TrainConfig, out: TextIO | None = None) -> dict[str, Any]:
             raise
 
 
-def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
+def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.OutputFolder,
                 device: torch.device, out: TextIO) -> dict[str, Any]:
     rng = np.random.default_rng(config.seed)
     torch.manual_seed(config.seed)
@@ -355,22 +362,25 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
     timer = StageTimer(checkpoint["timings"] if checkpoint else None)
     log_rows: list[dict] = list(checkpoint["log"]) if checkpoint else []
     os.makedirs(config.model_path, exist_ok=True)
-    model_io.write_cfg_args(folder.file("cfg_args"), config.cfg_args())
+    model_folder.write_cfg_args(folder.file(model_layout.CFG_ARGS_FILE), config.cfg_args())
     views = [(os.path.splitext(os.path.basename(p))[0], c) for dataset in
              ([inputs.test] if inputs.test is not None else []) + [inputs.train]
              for p, c in zip(dataset.image_paths, dataset.cameras)]
-    model_io.write_cameras_json(folder.file("cameras.json"), views)
+    model_folder.write_json(folder.file(model_layout.CAMERAS_FILE),
+                            [cameras_json_entry(index, name, camera)
+                             for index, (name, camera) in enumerate(views)])
     summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
     if checkpoint is None:
         grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)
-        model_io.write_sdf(folder.file("sdf.npz"), sdf, hull_sdf, grid.origin, grid.voxel)
+        sdf_path = folder.file(model_layout.SDF_FILE)
+        model_folder.write_sdf(sdf_path, sdf, hull_sdf, grid.origin, grid.voxel)
         with timer.stage("marching_cubes"):
             mesh = extract_mesh(sdf, grid, config.min_component,
-                                source=f"{folder.file('sdf.npz')} (--sdf-res {config.sdf_res})")
+                                source=f"{sdf_path} (--sdf-res {config.sdf_res})")
             if inputs.train.masks is not None or inputs.geometry is not None:
                 summary["hull_volume"] = float(extract_mesh(hull_sdf, grid, config.min_component,
                                                             "visual hull").volume)
-        model_io.write_mesh(folder.file("mesh.ply"), mesh)
+        model_folder.write_mesh(folder.file(model_layout.MESH_FILE), mesh)
         summary["mesh_volume"] = float(mesh.volume)
         with timer.stage("particles"):
             particles = sample_particles(mesh, sdf.to(device), grid, config.n_surface, config.nv,
@@ -399,9 +409,10 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
                                     rng, summary, device, checkpoint)
         particles.position[surface] = gaussians.means.detach().cpu().double().numpy()
         gaussian_index[surface] = np.arange(int(surface.sum()))
-    write_ply(folder.file(*model_io.point_cloud_path(config.model_path, iteration)
+    write_ply(folder.file(*model_layout.point_cloud_path(config.model_path, iteration)
                           .split(os.sep)[-3:]), gaussians)
     _write_particles(folder, particles, part_id, gaussian_index, config)
+    model_folder.remove_earlier_runs(config.model_path, {iteration, *config.save_iterations})
     with timer.stage("evaluation"):
         summary["train"] = evaluate_views(gaussians, inputs.train, device)
         if inputs.test is not None:
@@ -411,8 +422,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
                     "total_rest_volume": float(particles.volume.sum()),
                     "surface_spacing": particles.surface_spacing,
                     "timings": timer.as_dict()})
-    model_io.write_log_csv(folder.file("train_log.csv"), log_rows)
-    model_io.write_json(folder.file("timings.json"), summary)
+    model_folder.write_log_csv(folder.file(model_layout.TRAIN_LOG_FILE), log_rows)
+    model_folder.write_json(folder.file(model_layout.TIMINGS_FILE), summary)
     test_text = (f", test PSNR {summary['test']['psnr']:.2f} dB (SSIM {summary['test']['ssim']:.3f},"
                  f" {summary['test']['views']} views)" if "test" in summary else "")
     print(f"[train] {config.model_path}: train PSNR {summary['train']['psnr']:.2f} dB{test_text}; "
@@ -421,7 +432,7 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFold
     return summary
 
 
-def _fit(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
+def _fit(config: TrainConfig, inputs: Inputs, folder: model_folder.OutputFolder,
          particles: ParticleSet, part_id: np.ndarray, timer: StageTimer, log_rows: list[dict],
          rng: np.random.Generator, summary: dict[str, Any], device: torch.device,
          checkpoint: dict[str, Any] | None) -> tuple[GaussianModel, int]:
@@ -439,12 +450,12 @@ def _fit(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
                                 particles.normal[surface])
         state = new_fit_state(particles.position[surface], colors, settings, spatial_scale,
                               device)
-        model_io.write_input_ply(folder.file("input.ply"), particles.position[surface],
+        model_folder.write_input_ply(folder.file(model_layout.INPUT_PLY), particles.position[surface],
                                  particles.normal[surface], colors)
     else:
         state = _restore_fit(checkpoint, settings, spatial_scale, device)
     bar = _progress(config.iterations, state.iteration, "Gaussians", config.quiet)
-    previous = [c for c in model_io.checkpoints(config.model_path)]
+    previous = [c for c in model_layout.checkpoints(config.model_path)]
 
     def on_step(current: FitState, row: dict) -> None:
         bar.update(1)
@@ -452,7 +463,7 @@ def _fit(config: TrainConfig, inputs: Inputs, folder: model_io.OutputFolder,
             bar.set_postfix(loss=f"{row['loss']:.4f}", psnr=f"{row['psnr']:.2f}")
             log_rows.append(row)
         if current.iteration in config.save_iterations and current.iteration != config.iterations:
-            write_ply(folder.file(*model_io.point_cloud_path(config.model_path, current.iteration)
+            write_ply(folder.file(*model_layout.point_cloud_path(config.model_path, current.iteration)
                                   .split(os.sep)[-3:]), current.model)
         if config.checkpoint_every > 0 and current.iteration % config.checkpoint_every == 0 \
                 and current.iteration < config.iterations:
@@ -487,14 +498,14 @@ def _restore_fit(checkpoint: dict[str, Any], settings: FitSettings, spatial_scal
                     int(checkpoint["iteration"]), list(checkpoint["view_order"]))
 
 
-def _write_particles(folder: model_io.OutputFolder, particles: ParticleSet, part_id: np.ndarray,
+def _write_particles(folder: model_folder.OutputFolder, particles: ParticleSet, part_id: np.ndarray,
                      gaussian_index: np.ndarray, config: TrainConfig) -> None:
     comments = {"surface_spacing": particles.surface_spacing,
                 "interior_voxel": particles.interior_voxel}
-    model_io.write_particles_ply(folder.file(model_io.PARTICLES_FILE), particles.position,
+    write_particles_ply(folder.file(model_layout.PARTICLES_FILE), particles.position,
                                  particles.volume, particles.is_surface, part_id, gaussian_index,
                                  comments)
-    model_io.write_json(folder.file(model_io.PARTICLES_JSON), {
+    model_folder.write_json(folder.file(model_layout.PARTICLES_JSON), {
         "frame": "model coordinates = the dataset's world coordinates",
         "surface_spacing": particles.surface_spacing,
         "interior_voxel": particles.interior_voxel,

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -85,3 +86,12 @@ class Camera:
         w2c[:3, :3] = rot
         w2c[:3, 3] = -rot @ eye_t
         return Camera.from_fov(w2c, fov_x_rad, width, height, near)
+
+
+def cameras_json_entry(index: int, name: str, camera: Camera) -> dict[str, Any]:
+    """One entry of 3DGS's ``cameras.json`` (camera-to-world position and rotation)."""
+    camera_to_world = torch.linalg.inv(camera.world_to_camera.double()).numpy()
+    return {"id": index, "img_name": name, "width": camera.width, "height": camera.height,
+            "position": camera_to_world[:3, 3].tolist(),
+            "rotation": [row.tolist() for row in camera_to_world[:3, :3]],
+            "fy": camera.fy, "fx": camera.fx}

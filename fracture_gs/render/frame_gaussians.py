@@ -35,19 +35,18 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import ObjectConfig
-from fracture_gs.fracture.fpgo import (GAUSSIAN_COLUMNS, FPGOSettings, FPGOStats,
-                                       FractureParticles, apply_fpgo, contiguous_span,
-                                       rest_neighbour_tables)
+from fracture_gs.folders.model_folder import estimated_spacing, model_spacing
+from fracture_gs.folders.sim_reader import SimFrame, Simulation
+from fracture_gs.fracture.fpgo import (FPGOSettings, FPGOStats, FractureParticles, apply_fpgo,
+                                       contiguous_span, rest_neighbour_tables)
 from fracture_gs.fracture.ops import deform_gaussians
 from fracture_gs.fracture.spatial import k_nearest
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, read_ply, rgb_to_sh_dc, write_ply
+from fracture_gs.io.model_layout import ModelError, latest_point_cloud
 from fracture_gs.mpm.scene import rotation_matrix_xyz
 from fracture_gs.render.camera import Camera
-from fracture_gs.render.model_folder import (ModelError, estimated_spacing, latest_point_cloud,
-                                             model_spacing)
 from fracture_gs.render.rasterize import rasterize
 from fracture_gs.render.sh_rotation import rotate_sh
-from fracture_gs.sim.folder import SimFrame, Simulation
 
 FLAT_PALETTE = ((0.86, 0.42, 0.30), (0.27, 0.51, 0.78), (0.38, 0.70, 0.40), (0.93, 0.72, 0.25),
                 (0.62, 0.45, 0.75), (0.35, 0.75, 0.78), (0.80, 0.50, 0.62), (0.55, 0.55, 0.55))
@@ -56,6 +55,9 @@ FLAT_OPACITY = 0.95
 
 # ----------------------------------------------------------------------------- FrameGaussians
 
+# the per-Gaussian tensors of a FrameGaussians (FPGO takes and returns them as a dict)
+GAUSSIAN_COLUMNS = ("means", "covariances", "opacities", "sh", "view_rotations", "exclusive",
+                    "object_id", "is_fpgo", "particle")
 
 @dataclass
 class FrameGaussians:
@@ -83,6 +85,10 @@ class FrameGaussians:
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
+
+    def columns(self) -> dict[str, torch.Tensor]:
+        """The per-Gaussian tensors by name (:data:`GAUSSIAN_COLUMNS`)."""
+        return {name: getattr(self, name) for name in GAUSSIAN_COLUMNS}
 
     def select(self, mask: torch.Tensor) -> "FrameGaussians":
         """The Gaussians where ``mask`` (bool or indices) selects."""
@@ -430,7 +436,7 @@ class SceneGaussians:
             particle=tables["driver"])
         if not fpgo:
             return base
-        columns, stats = apply_fpgo(base, x, F_E, frame.fractured.to(self.device), self.fracture,
+        columns, stats = apply_fpgo(base.columns(), x, F_E, frame.fractured.to(self.device), self.fracture,
                                     self.settings, self._deform_interior(x, F_E, backend), backend)
         rule = "all" if self.settings.exclusive == "all" else "group"
         return FrameGaussians(**columns, stats=stats, exclusive_rule=rule)

@@ -18,8 +18,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from fracture_gs.mpm.output import write_text_atomic
-from fracture_gs.sim.folder import Simulation
+from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.folders.sim_reader import Simulation
 
 RENDER_INFO_FILE = "render.json"
 RENDER_INFO_FORMAT = "fracture_gs/render-info-v1"

@@ -5,12 +5,13 @@ renamed), so an interrupted render never leaves a truncated video behind.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cv2
 import numpy as np
 import torch
+
+from fracture_gs.io.atomic import atomic_path, commit, discard, temporary_beside, write_bytes_atomic
 
 
 def to_uint8(rgb: torch.Tensor) -> np.ndarray:
@@ -23,9 +24,7 @@ def write_png(path: Path, image: np.ndarray) -> None:
     ok, encoded = cv2.imencode(".png", np.ascontiguousarray(image[..., ::-1]))
     if not ok:
         raise OSError(f"{path}: PNG encoding failed")
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_bytes(encoded.tobytes())
-    os.replace(temporary, path)
+    write_bytes_atomic(path, encoded.tobytes())
 
 
 class Mp4Writer:
@@ -41,7 +40,7 @@ class Mp4Writer:
         self.path = path
         self.width, self.height = width, height
         self.frames = 0
-        self._temporary = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+        self._temporary = temporary_beside(path)
         self._size = (width + width % 2, height + height % 2)
         self._writer = imageio_ffmpeg.write_frames(
             str(self._temporary), self._size, fps=fps, codec="libx264", pix_fmt_out="yuv420p",
@@ -61,14 +60,14 @@ class Mp4Writer:
     def close(self) -> None:
         """Finish the file and move it into place."""
         self._writer.close()
-        os.replace(self._temporary, self.path)
+        commit(self._temporary, self.path)
 
     def abort(self) -> None:
         """Stop without keeping a file."""
         try:
             self._writer.close()
         finally:
-            self._temporary.unlink(missing_ok=True)
+            discard(self._temporary)
 
 
 def write_gif(path: Path, images: list[np.ndarray], fps: float, max_size: int = 320) -> None:
@@ -81,7 +80,6 @@ def write_gif(path: Path, images: list[np.ndarray], fps: float, max_size: int = 
     factor = min(1.0, max_size / max(width, height))
     size = (max(1, round(width * factor)), max(1, round(height * factor)))
     frames = [Image.fromarray(image).resize(size, Image.LANCZOS) for image in images]
-    temporary = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    frames[0].save(temporary, format="GIF", save_all=True, append_images=frames[1:],
-                   duration=max(20, round(1000.0 / fps)), loop=0, optimize=True)
-    os.replace(temporary, path)
+    with atomic_path(path) as temporary:
+        frames[0].save(temporary, format="GIF", save_all=True, append_images=frames[1:],
+                       duration=max(20, round(1000.0 / fps)), loop=0, optimize=True)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fracture_gs.io.model_layout import CFG_ARGS_FILE
 from fracture_gs.render.camera import Camera
 
 ORBIT_ELEVATION_DEG = 20.0
@@ -176,16 +177,19 @@ def transform_camera(camera: Camera, rotation: np.ndarray, scale: float,
 
 def dataset_source(model_dir: Path) -> Path:
     """The dataset folder a model was trained on (``source_path`` in its ``cfg_args``)."""
-    cfg = model_dir / "cfg_args"
-    try:
-        text = cfg.read_text()
-    except OSError:
+    from fracture_gs.folders.model_folder import read_cfg_args
+
+    cfg = model_dir / CFG_ARGS_FILE
+    if not cfg.is_file():
         raise ViewSpecError(f"{cfg}: file not found (train/test views need the model's "
-                            "cfg_args with source_path)") from None
-    match = re.search(r"source_path\s*=\s*(['\"])(.*?)\1", text)
-    if match is None:
+                            "cfg_args with source_path)")
+    try:
+        options = read_cfg_args(str(cfg))
+    except (OSError, ValueError) as exc:
+        raise ViewSpecError(str(exc)) from None
+    if not options.get("source_path"):
         raise ViewSpecError(f"{cfg}: no source_path in it")
-    source = Path(match.group(2))
+    source = Path(options["source_path"])
     if not source.is_absolute():
         source = (model_dir / source) if (model_dir / source).exists() else Path.cwd() / source
     if not source.exists():

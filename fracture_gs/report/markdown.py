@@ -5,7 +5,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from fracture_gs.mpm.output import write_text_atomic
+from fracture_gs.io.atomic import write_text_atomic
 
 # The paper's Fig. 5 numbers (PSNR / LPIPS / FID), printed beside ours in comparisons.
 PAPER_ABLATION = {"ours": (21.1, 0.29, 90.75), "PhysGaussian": (17.2, 0.43, 120.92),

@@ -12,7 +12,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fracture_gs.mpm.output import read_diagnostics_csv, write_bytes_atomic
+from fracture_gs.io.atomic import write_bytes_atomic
+from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.folders.sim_reader import read_diagnostics_csv
 
 _STYLES = ("--", ":", "-.", (0, (5, 1)))
 _AXES = {"x": "tab:red", "y": "tab:green", "z": "tab:blue"}
@@ -170,7 +172,7 @@ def energy_plot(columns: dict[str, np.ndarray], path: Path, title: str = "") -> 
 def diagnostics_plots(sim_dir: Path, out_dir: Path, prefix: str = "") -> tuple[Path, Path,
                                                                              ConservationSummary]:
     """``momentum.png`` and ``energy.png`` of a simulation folder's diagnostics.csv."""
-    columns = read_diagnostics_csv(Path(sim_dir) / "diagnostics.csv")
+    columns = read_diagnostics_csv(SimLayout(sim_dir).csv_path)
     momentum_path = out_dir / f"{prefix}momentum.png"
     energy_path = out_dir / f"{prefix}energy.png"
     momentum_plot(columns, momentum_path)

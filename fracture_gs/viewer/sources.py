@@ -1,12 +1,12 @@
 """What the viewer shows: the frames of a simulation folder, or a trained model as one frame.
 
 Both sources turn "frame t (with or without FPGO)" into a :class:`~fracture_gs.viewer.splats.
-SplatFrame`. A simulation goes through the renderer's own code path — :class:`~fracture_gs.sim.
-folder.Simulation` to read the frame and :class:`~fracture_gs.render.frame_gaussians.
+SplatFrame`. A simulation goes through the renderer's own code path — :class:`~fracture_gs.io.
+sim_reader.Simulation` to read the frame and :class:`~fracture_gs.render.frame_gaussians.
 SceneGaussians` to deform the Gaussians and run FPGO — so the viewer shows what ``render.py``
 renders. Opening checks the folder exactly as ``render.py`` does and raises the same one-line
-errors (:class:`~fracture_gs.sim.folder.SimulationError`,
-:class:`~fracture_gs.render.model_folder.ModelError`).
+errors (:class:`~fracture_gs.folders.sim_reader.SimulationError`,
+:class:`~fracture_gs.folders.model_folder.ModelError`).
 """
 from __future__ import annotations
 
@@ -22,10 +22,11 @@ import torch
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.gaussians import PlyFormatError, read_ply
 from fracture_gs.mpm.fragments import piece_ranks
-from fracture_gs.mpm.output import DIAGNOSTICS_CSV, read_diagnostics_csv
+from fracture_gs.io.sim_layout import DIAGNOSTICS_CSV
+from fracture_gs.folders.sim_reader import read_diagnostics_csv
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
-from fracture_gs.render.model_folder import ModelError, latest_point_cloud
-from fracture_gs.sim.folder import Simulation
+from fracture_gs.io.model_layout import ModelError, latest_point_cloud
+from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.viewer.splats import SplatFrame, object_splats, unit_scale_for
 
 

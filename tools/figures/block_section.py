@@ -30,7 +30,7 @@ import numpy as np  # noqa: E402
 from bench_fragments import BLOCKS, PIECE_SHARE  # noqa: E402
 from fragment_scenes import block_drop  # noqa: E402
 from fracture_gs.mpm.fragments import fragment_sizes  # noqa: E402
-from fracture_gs.mpm.output import atomic_write  # noqa: E402
+from fracture_gs.io.atomic import atomic_write  # noqa: E402
 from fragment_strip import fragment_colours  # noqa: E402
 
 ALPHA_RANGE = (-0.1, 0.1)  # colour scale of α: compacted (hardened) ... dilated past the threshold 0

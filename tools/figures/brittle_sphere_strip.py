@@ -26,7 +26,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
-from fracture_gs.mpm.output import OutputError, atomic_write, load_frame, read_npz  # noqa: E402
+from fracture_gs.folders.sim_reader import OutputError, load_frame, read_npz  # noqa: E402
+from fracture_gs.io.atomic import atomic_write  # noqa: E402
 from fracture_gs.viewer.splats import damage_colours, piece_colours  # noqa: E402
 
 _FOLDER = re.compile(r"^v(\d+(?:\.\d+)?)_fragments_(on|off)$")

@@ -26,8 +26,9 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from fracture_gs.mpm.fragments import piece_ranks  # noqa: E402
-from fracture_gs.mpm.output import (PARTICLES_FILE, OutputError, atomic_write, frame_file_name,  # noqa: E402
-                                    load_frame)
+from fracture_gs.io.sim_layout import PARTICLES_FILE, frame_file_name  # noqa: E402
+from fracture_gs.folders.sim_reader import OutputError, load_frame  # noqa: E402
+from fracture_gs.io.atomic import atomic_write  # noqa: E402
 from fracture_gs.viewer.splats import piece_colours  # noqa: E402
 
 

@@ -22,11 +22,11 @@ import cv2
 import numpy as np
 import torch
 
-from fracture_gs.cli.render import resolve_views
+from fracture_gs.render.sim_views import resolve_views
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8
-from fracture_gs.sim import Simulation
+from fracture_gs.folders.sim_reader import Simulation
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:

@@ -27,7 +27,7 @@ from fracture_gs.data import DatasetError, load_dataset  # noqa: E402
 from fracture_gs.gaussians import read_ply  # noqa: E402
 from fracture_gs.metrics.image import psnr  # noqa: E402
 from fracture_gs.recon.gaussian_fit import render_model  # noqa: E402
-from fracture_gs.recon.model_io import latest_iteration, point_cloud_path  # noqa: E402
+from fracture_gs.io.model_layout import latest_iteration, point_cloud_path  # noqa: E402
 from fracture_gs.report.plots import frame_strip  # noqa: E402
 
 

@@ -6,10 +6,10 @@ import json
 import os
 import sys
 
-from fracture_gs.cli.output_folder import os_error_line
 from fracture_gs.data.synthetic.generator import (GeneratorSettings, check_output_folder,
                                                   generate_dataset)
 from fracture_gs.data.synthetic.objects import OBJECT_NAMES
+from fracture_gs.io.output_folder import os_error_line
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:

@@ -17,6 +17,7 @@ delete ``data/``.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import time
 from dataclasses import dataclass
@@ -30,9 +31,12 @@ from fracture_gs.data.synthetic.cameras import NERF_CAMERA_ANGLE_X, sphere_poses
 from fracture_gs.data.synthetic.objects import SyntheticObject, build_object
 from fracture_gs.data.synthetic.render_mitsuba import build_scene, render_view, require_mitsuba
 from fracture_gs.data.synthetic.textures import linear_to_srgb
+from fracture_gs.io.manifest import Manifest
 
 
 GENERATOR_FILE = "generator.json"            # marks a folder as a generated dataset
+GENERATED_NAMES = ("transforms_train.json", "transforms_test.json", "gt_mesh.ply", "parts.json",
+                   GENERATOR_FILE)
 PARTIAL_MARKER = ".generator_partial.json"   # marks a staging folder of an unfinished run
 
 
@@ -104,17 +108,45 @@ def partial_folder(out: str) -> str:
     return os.path.normpath(out) + ".partial"
 
 
+def _generated_files(folder: str) -> list[str]:
+    """The files of ``folder`` (relative paths) that the generator wrote: its manifest, or in a
+    dataset made before it kept one, the names the generator writes."""
+    manifest = Manifest.load(folder)
+    if manifest.exists():
+        return sorted(manifest.files)
+    found = [name for name in GENERATED_NAMES if os.path.isfile(os.path.join(folder, name))]
+    for split in ("train", "test"):
+        images = os.path.join(folder, split)
+        if os.path.isdir(images):
+            found += [f"{split}/{name}" for name in sorted(os.listdir(images))
+                      if re.fullmatch(r"r_\d+\.png", name)]
+    return found
+
+
 def _replace_folder(partial: str, out: str, overwrite: bool) -> None:
-    """Move the finished ``partial`` to ``out``; a replaced dataset is deleted only after the
-    new one is in place."""
+    """Move the finished ``partial`` to ``out``. Over an earlier dataset, its generated files
+    are replaced file by file; files the generator did not write (a user's notes, hand-made
+    masks) stay."""
     _check_target(out, overwrite)  # the run took minutes: look again before deleting
-    if os.path.lexists(out) and not _is_empty_folder(out):
-        retired = f"{os.path.normpath(out)}.replaced-{os.getpid()}"
-        os.replace(out, retired)
-        os.replace(partial, out)
-        shutil.rmtree(retired)
-    else:
+    new_files = _generated_files(partial)
+    if not os.path.lexists(out) or _is_empty_folder(out):
         os.replace(partial, out)  # over an empty folder, too
+        return
+    Manifest(out, _generated_files(out)).remove_written()
+    for name in new_files:
+        target = os.path.join(out, name)
+        os.makedirs(os.path.dirname(target), exist_ok=True)
+        os.replace(os.path.join(partial, name), target)
+    Manifest(out, new_files).save()
+    shutil.rmtree(partial)
+
+
+def _record_files(folder: str) -> None:
+    """Record every file of the finished staging folder in its manifest."""
+    manifest = Manifest(folder)
+    for root, _, names in os.walk(folder):
+        manifest.add(*(os.path.join(root, name) for name in names))
+    manifest.save()
 
 
 def generate_dataset(name: str, out: str, settings: GeneratorSettings = GeneratorSettings(),
@@ -170,6 +202,7 @@ def generate_dataset(name: str, out: str, settings: GeneratorSettings = Generato
                    "total_seconds": round(time.perf_counter() - started, 2)}
         writer.write_json(os.path.join(partial, GENERATOR_FILE), summary)
         os.remove(os.path.join(partial, PARTIAL_MARKER))
+        _record_files(partial)
         _replace_folder(partial, out, overwrite)
     except BaseException:
         shutil.rmtree(partial, ignore_errors=True)

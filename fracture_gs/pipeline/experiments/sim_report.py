@@ -8,10 +8,10 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from fracture_gs.experiments.sim_eval import EvalOptions, RunResult, RunSpec, evaluate_run
+from fracture_gs.io.atomic import write_text_atomic
 from fracture_gs.metrics.paired import DEFAULT_CONFIDENCE, paired_differences
 from fracture_gs.metrics.protocol import MetricNetworks
-from fracture_gs.mpm.output import write_text_atomic
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, RunResult, RunSpec, evaluate_run
 from fracture_gs.report.markdown import (COMPARISON_HEADER, PAIRED_HEADER, PAPER_ABLATION,
                                          advantage_text, comparison_rows, paired_rows, table,
                                          unavailable_notes, write_report)

@@ -6,7 +6,6 @@ rendered here first when missing) and computes PSNR, SSIM and LPIPS (AlexNet) pe
 """
 from __future__ import annotations
 
-import argparse
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,10 +14,12 @@ import cv2
 import numpy as np
 import torch
 
+from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.io.model_layout import (GROUND_TRUTH_DIR, RENDERED_DIR, latest_iteration,
+                                         split_render_dir)
 from fracture_gs.metrics.image import psnr, ssim
 from fracture_gs.metrics.protocol import MetricNetworks
-from fracture_gs.mpm.output import write_text_atomic
-from fracture_gs.experiments.sim_eval import EvaluationError
+from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
 
 
 @dataclass
@@ -51,10 +52,9 @@ def _read_png(path: Path) -> np.ndarray:
 
 def _render_folder(model: Path, split: str, device: torch.device) -> tuple[Path, int]:
     """``<model>/<split>/ours_<N>`` holding renders/ and gt/, rendered if missing."""
-    from fracture_gs.cli import render_model
     from fracture_gs.data import DatasetError
     from fracture_gs.gaussians import PlyFormatError
-    from fracture_gs.recon.model_io import latest_iteration
+    from fracture_gs.pipeline.render_model import RenderInputError, render_model
 
     if not model.is_dir():
         raise EvaluationError(f"{model}: model folder not found")
@@ -62,16 +62,14 @@ def _render_folder(model: Path, split: str, device: torch.device) -> tuple[Path,
     if iteration is None:
         raise EvaluationError(f"{model / 'point_cloud'}: no iteration_N/point_cloud.ply "
                               "(is it a train.py output folder?)")
-    folder = model / split / f"ours_{iteration}"
-    if not (folder / "renders").is_dir() or not (folder / "gt").is_dir():
-        args = argparse.Namespace(model_path=str(model), source_path=None, iteration=iteration,
-                                  skip_train=split != "train", skip_test=split != "test",
-                                  device=device.type, quiet=True)
+    folder = Path(split_render_dir(str(model), split, iteration))
+    if not (folder / RENDERED_DIR).is_dir() or not (folder / GROUND_TRUTH_DIR).is_dir():
         try:
-            render_model.run(args)
-        except (render_model.RenderInputError, DatasetError, PlyFormatError) as exc:
+            render_model(str(model), iteration=iteration, skip_train=split != "train",
+                         skip_test=split != "test", device=device.type, quiet=True)
+        except (RenderInputError, DatasetError, PlyFormatError) as exc:
             raise EvaluationError(str(exc)) from None
-    if not (folder / "renders").is_dir():
+    if not (folder / RENDERED_DIR).is_dir():
         raise EvaluationError(f"{folder}: no renders/ (the dataset has no {split} split)")
     return folder, iteration
 
@@ -82,11 +80,11 @@ def evaluate_model(model: Path, networks: MetricNetworks, split: str = "test",
     per_view.json into the model folder."""
     device = device if device is not None else torch.device("cpu")
     folder, iteration = _render_folder(Path(model), split, device)
-    names = sorted(p.name for p in (folder / "renders").glob("*.png"))
+    names = sorted(p.name for p in (folder / RENDERED_DIR).glob("*.png"))
     if not names:
         raise EvaluationError(f"{folder / 'renders'}: no images")
-    renders = np.stack([_read_png(folder / "renders" / n) for n in names])
-    gts = np.stack([_read_png(folder / "gt" / n) for n in names])
+    renders = np.stack([_read_png(folder / RENDERED_DIR / n) for n in names])
+    gts = np.stack([_read_png(folder / GROUND_TRUTH_DIR / n) for n in names])
     if renders.shape != gts.shape:
         raise EvaluationError(f"{folder}: renders/ and gt/ images differ in size")
     render_t = torch.from_numpy(renders).float() / 255.0

@@ -25,9 +25,11 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, load_scene
-from fracture_gs.experiments.runner import JobResult, SimJob, run_jobs
-from fracture_gs.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
-from fracture_gs.mpm.output import read_diagnostics_csv, write_text_atomic
+from fracture_gs.folders.sim_reader import read_diagnostics_csv
+from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.pipeline.experiments.runner import JobResult, SimJob, run_jobs
+from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, EvaluationError, RunSpec
 from fracture_gs.report.markdown import table, write_report
 from fracture_gs.report.plots import conservation_summary, energy_plot, line_plot, momentum_plot
 
@@ -107,7 +109,7 @@ def _write_json(path: Path, content: dict) -> None:
 
 def ablation(settings: ExperimentSettings) -> dict:
     """Fig. 5: ours (collision + FPGO) vs collision without FPGO vs mls without FPGO."""
-    from fracture_gs.report.sim_report import evaluate_and_report, print_comparison
+    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report, print_comparison
 
     config = load_experiment_scene(settings, "ablation")
     out = settings.out_root / "ablation"
@@ -180,7 +182,7 @@ def _object_spacings(sim_dir: Path) -> tuple[np.ndarray, list[float]]:
     """Per object: the rest particle spacing, median(rest_volume)^(1/3) (jittered samples sit
     closer than that to their nearest neighbour, so the nearest-neighbour distance would cut an
     intact object into pieces)."""
-    with np.load(sim_dir / "particles.npz") as particles:
+    with np.load(SimLayout(sim_dir).particles_path) as particles:
         obj_id, volume = particles["obj_id"], particles["rest_volume"].astype(np.float64)
     return obj_id, [float(np.median(volume[obj_id == o]) ** (1.0 / 3.0))
                     for o in range(int(obj_id.max()) + 1)]
@@ -189,7 +191,7 @@ def _object_spacings(sim_dir: Path) -> tuple[np.ndarray, list[float]]:
 def hardening(settings: ExperimentSettings) -> dict:
     """Fig. 9: the same drop with three initial hardening states α0."""
     from fracture_gs.metrics.onset import fracture_window_from_simulation
-    from fracture_gs.mpm.output import load_frame
+    from fracture_gs.folders.sim_reader import load_frame
 
     base = load_experiment_scene(settings, "hardening")
     out = settings.out_root / "hardening"
@@ -199,9 +201,10 @@ def hardening(settings: ExperimentSettings) -> dict:
     rows, curves, times = [], {}, None
     for alpha0, job in zip(settings.alpha0_values, jobs):
         sim_dir = Path(job.out_dir)
-        columns = read_diagnostics_csv(sim_dir / "diagnostics.csv")
+        layout = SimLayout(sim_dir)
+        columns = read_diagnostics_csv(layout.csv_path)
         obj_id, spacing = _object_spacings(sim_dir)
-        last = load_frame(sim_dir / "frames" / f"frame_{int(columns['frame'][-1]):05d}.npz")
+        last = load_frame(layout.frame_path(int(columns['frame'][-1])))
         share = columns["fractured"] / obj_id.size
         window = fracture_window_from_simulation(sim_dir)
         fragments = fragment_count(last["x"], obj_id, spacing)
@@ -239,18 +242,19 @@ def resampled_model_particles(model_dir: Path, nv: int, out_path: Path, seed: in
     import trimesh
 
     from fracture_gs.recon.grid import VoxelGrid
-    from fracture_gs.recon.model_io import read_particles_ply, write_particles_ply
+    from fracture_gs.io.model_layout import MESH_FILE, PARTICLES_FILE, PARTICLES_JSON, SDF_FILE
+    from fracture_gs.io.particles_ply import read_particles_ply, write_particles_ply
     from fracture_gs.recon.particles import sample_particles
     from scipy.spatial import cKDTree
 
     try:
-        with np.load(model_dir / "sdf.npz") as data:
+        with np.load(model_dir / SDF_FILE) as data:
             sdf = torch.from_numpy(data["sdf"].astype(np.float32))
             grid = VoxelGrid(tuple(float(v) for v in data["origin"]), float(data["voxel"]),
                              tuple(int(n) for n in sdf.shape))
-        info = json.loads((model_dir / "particles.json").read_text())
-        mesh = trimesh.load(model_dir / "mesh.ply", force="mesh")
-        trained = read_particles_ply(str(model_dir / "particles.ply"))
+        info = json.loads((model_dir / PARTICLES_JSON).read_text())
+        mesh = trimesh.load(model_dir / MESH_FILE, force="mesh")
+        trained = read_particles_ply(model_dir / PARTICLES_FILE)
     except (OSError, KeyError, ValueError) as exc:
         raise EvaluationError(f"{model_dir}: cannot resample its particles "
                               f"({type(exc).__name__}: {exc})") from None
@@ -291,10 +295,10 @@ def coordinate_errors(run_dir: Path, reference_dir: Path) -> np.ndarray:
     surface samples)."""
     from scipy.spatial import cKDTree
 
-    from fracture_gs.mpm.output import load_frame
+    from fracture_gs.folders.sim_reader import load_frame
 
     def rest(path: Path) -> tuple[np.ndarray, np.ndarray]:
-        with np.load(path / "particles.npz") as data:
+        with np.load(SimLayout(path).particles_path) as data:
             return data["rest_x"].astype(np.float64), data["obj_id"]
 
     run_rest, run_obj = rest(run_dir)
@@ -304,10 +308,11 @@ def coordinate_errors(run_dir: Path, reference_dir: Path) -> np.ndarray:
         ref_rows = np.nonzero(ref_obj == obj)[0]
         _, nearest = cKDTree(ref_rest[ref_rows]).query(run_rest[run_obj == obj])
         match[run_obj == obj] = ref_rows[nearest]
-    frames = sorted(p.name for p in (run_dir / "frames").glob("frame_*.npz"))
-    errors = [np.abs(load_frame(run_dir / "frames" / name)["x"].astype(np.float64)
-                     - load_frame(reference_dir / "frames" / name)["x"].astype(np.float64)[match]
-                     ).mean(axis=0) for name in frames if (reference_dir / "frames" / name).is_file()]
+    run, reference = SimLayout(run_dir), SimLayout(reference_dir)
+    errors = [np.abs(load_frame(run.frame_path(f))["x"].astype(np.float64)
+                     - load_frame(reference.frame_path(f))["x"].astype(np.float64)[match]
+                     ).mean(axis=0)
+              for f in run.frames_on_disk() if reference.frame_path(f).is_file()]
     return np.mean(errors, axis=0)
 
 
@@ -322,7 +327,7 @@ def nv_sweep(settings: ExperimentSettings) -> dict:
     reference = Path(jobs[-1].out_dir)
     rows = []
     for nv, job, result in zip(values, jobs, results):
-        with np.load(Path(job.out_dir) / "particles.npz") as data:
+        with np.load(SimLayout(job.out_dir).particles_path) as data:
             count = int(data["mass"].shape[0])
         error = coordinate_errors(Path(job.out_dir), reference)
         rows.append({"nv": nv, "particles": count, "x_error": float(error[0]),
@@ -359,7 +364,7 @@ def _conservation(settings: ExperimentSettings, name: str) -> tuple[SceneConfig,
     out = settings.out_root / name
     job = SimJob.of(config, out / "sims" / config.name)
     _run(settings, [job])
-    columns = read_diagnostics_csv(Path(job.out_dir) / "diagnostics.csv")
+    columns = read_diagnostics_csv(SimLayout(job.out_dir).csv_path)
     return config, out, columns
 
 

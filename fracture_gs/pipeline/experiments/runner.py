@@ -3,14 +3,14 @@ processes, or on an existing Ray cluster (``ray_address``; Ray is an optional ex
 
 A job is a resolved scene (``SceneConfig.to_dict()``: plain data with absolute model paths, so
 it travels to another process or machine) and the folder to write. A job whose folder already
-holds every frame of the same scene is skipped (``force`` re-runs it from scratch).
+holds every frame of the same scene is skipped (``force`` re-runs it from scratch: the files the
+tools wrote for the earlier run are replaced, other files in the folder stay).
 """
 from __future__ import annotations
 
 import io
 import multiprocessing
 import os
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fracture_gs.config.scene import SceneConfig, parse_scene, read_yaml
-from fracture_gs.mpm.output import FRAMES_DIR, SCENE_FILE, frame_file_name
+from fracture_gs.io.sim_layout import SimLayout
 
 
 class RunFailed(RuntimeError):
@@ -55,30 +55,23 @@ class JobResult:
 def is_complete(job: SimJob) -> bool:
     """The folder holds the same scene and every frame of it."""
     out_dir = Path(job.out_dir)
-    scene_path = out_dir / SCENE_FILE
+    layout = SimLayout(out_dir)
+    scene_path = layout.scene_path
     if not scene_path.is_file():
         return False
     try:
         written = parse_scene(read_yaml(scene_path), base_dir=out_dir).to_dict()
     except Exception:  # an unreadable folder is simply not complete
         return False
-    last = out_dir / FRAMES_DIR / frame_file_name(int(job.scene["frames"]))
+    last = layout.frame_path(int(job.scene["frames"]))
     return written == parse_scene(job.scene).to_dict() and last.is_file()
-
-
-def clear_run_folder(out_dir: Path) -> None:
-    """Remove a previous simulation folder (only one that simulate.py wrote: has scene.yaml)."""
-    if out_dir.exists():
-        if not (out_dir / SCENE_FILE).is_file():
-            raise RunFailed(f"{out_dir}: exists and is not a simulation folder; not replacing it")
-        shutil.rmtree(out_dir)
 
 
 def run_job(job: SimJob, force: bool = False, threads: int | None = None) -> JobResult:
     """Run one job in this process (the function local workers and Ray tasks call)."""
     import torch
 
-    from fracture_gs.cli.simulate import run_simulation
+    from fracture_gs.pipeline.simulate import run_simulation
 
     if threads is not None:
         torch.set_num_threads(threads)
@@ -86,7 +79,6 @@ def run_job(job: SimJob, force: bool = False, threads: int | None = None) -> Job
     out_dir = Path(job.out_dir)
     if not force and is_complete(job):
         return JobResult(job.name, job.out_dir, 0.0, True, f"{out_dir}: complete, skipped")
-    clear_run_folder(out_dir)
     log = io.StringIO()
     try:
         run_simulation(parse_scene(job.scene), out_dir, device=torch.device("cpu"),

@@ -1,4 +1,5 @@
-"""Reading a simulation output folder (written by :mod:`fracture_gs.mpm.output`, docs/file_formats.md §4).
+"""Reading a simulation folder (layout: :mod:`fracture_gs.io.sim_layout`; written by
+:mod:`fracture_gs.folders.sim_writer`; docs/file_formats.md §4).
 
 ```python
 sim = Simulation.open("output/sims/two_spheres")     # SimulationError: one line naming the file
@@ -10,9 +11,11 @@ the file or option at fault, so command-line tools can print it and exit with st
 """
 from __future__ import annotations
 
+import csv
 import hashlib
 import re
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,12 +23,70 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, parse_scene, read_yaml
-from fracture_gs.mpm.output import (FRAMES_DIR, PARTICLES_FILE, SCENE_FILE, frame_file_name)
+from fracture_gs.io.manifest import Manifest
+from fracture_gs.io.sim_layout import (OPTIONAL_FRAME_ARRAYS, PARTICLE_ARRAYS, PARTICLES_FILE,
+                                       RENDER_ARRAYS, SCENE_FILE, SimLayout)
 
-PARTICLE_ARRAYS = ("rest_x", "obj_id", "is_surface", "gaussian_index", "rest_volume")
-FRAME_ARRAYS = ("x", "F_E", "fractured")
-OPTIONAL_FRAME_ARRAYS = ("fragment_id", "damage")   # absent in runs of older versions
-_FRAME_PATTERN = re.compile(r"^frame_(\d+)\.npz$")
+
+class OutputError(ValueError):
+    """A file of an output folder that cannot be used: missing, unreadable, truncated or not
+    written by ``simulate.py``. The message is one line naming the file."""
+
+
+def damaged_file(path: Path, reason: str) -> OutputError:
+    """The OutputError of a file that cannot be read for ``reason``."""
+    return OutputError(f"{path}: cannot be read ({reason}); the file is damaged or was not "
+                       "written by simulate.py")
+
+
+def read_npz(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file written by this module; :class:`OutputError` if the file
+    is missing, unreadable, truncated or not an arrays archive."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as handle:
+            magic = handle.read(4)
+    except FileNotFoundError:
+        raise OutputError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise OutputError(f"{path}: is a folder, expected a file") from None
+    except OSError as exc:
+        raise damaged_file(path, exc.strerror or type(exc).__name__) from None
+    if not magic.startswith(b"PK"):
+        raise damaged_file(path, "empty file" if not magic else "not an .npz archive")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise damaged_file(path, str(exc).splitlines()[0] if str(exc) else type(exc).__name__) \
+            from None
+
+
+def check_npz_complete(path: Path) -> None:
+    """OutputError unless ``path`` is a complete zip archive (its central directory, at the
+    end of the file, is read; the arrays are not)."""
+    try:
+        with zipfile.ZipFile(path):
+            pass
+    except FileNotFoundError:
+        raise OutputError(f"{path}: file not found") from None
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise damaged_file(path, str(exc)) from None
+
+
+def load_frame(path: str | Path) -> dict[str, np.ndarray]:
+    """Read one frame file into a dict of arrays (:class:`OutputError` if it is damaged)."""
+    return read_npz(path)
+
+
+def read_diagnostics_csv(path: str | Path) -> dict[str, np.ndarray]:
+    """Columns of a ``diagnostics.csv`` as float arrays."""
+    with open(path, newline="") as handle:
+        reader = csv.reader(handle)
+        header = next(reader)
+        values = np.array([[float(v) for v in row] for row in reader], dtype=np.float64)
+    values = values.reshape(-1, len(header))
+    return {name: values[:, i] for i, name in enumerate(header)}
 
 
 class SimulationError(ValueError):
@@ -84,6 +145,25 @@ def _load_npz(path: Path, names: tuple[str, ...],
         raise SimulationError(f"{path}: not a readable .npz file ({type(exc).__name__})") from None
 
 
+def _check_one_run(layout: SimLayout, frames: list[int]) -> None:
+    """SimulationError unless the frame files are frames 0..last without a gap and, where the
+    folder records what was written, all of them were written by its run (not left over from
+    another run into the same folder)."""
+    present = set(frames)
+    gap = next((f for f in range(frames[-1] + 1) if f not in present), None)
+    if gap is not None:
+        missing = layout.frame_path(gap)
+        raise SimulationError(f"{missing} is missing (the folder has frames up to {frames[-1]}); "
+                              "the run is incomplete or damaged: simulate it again")
+    manifest = Manifest.load(layout.root)
+    if manifest.exists():
+        foreign = [f for f in frames if layout.frame_path(f) not in manifest]
+        if foreign:
+            raise SimulationError(f"{layout.frame_path(foreign[0])} was not written by the run in "
+                                  f"{layout.root} (frames of two runs are mixed): simulate it "
+                                  "again")
+
+
 class Simulation:
     """An opened simulation folder: its resolved scene, constant particle data and frames."""
 
@@ -104,7 +184,8 @@ class Simulation:
         root = Path(path)
         if not root.is_dir():
             raise SimulationError(f"{root}: no such simulation folder")
-        scene_path = root / SCENE_FILE
+        layout = SimLayout(root)
+        scene_path = layout.scene_path
         if not scene_path.is_file():
             raise SimulationError(f"{scene_path}: file not found (not a simulate.py output folder)")
         try:
@@ -127,11 +208,10 @@ class Simulation:
         if count and (particles.obj_id.min() < 0 or particles.obj_id.max() >= len(scene.objects)):
             raise SimulationError(f"{root / PARTICLES_FILE}: obj_id outside 0..{len(scene.objects) - 1}"
                                   f" (the scene has {len(scene.objects)} objects)")
-        frames_dir = root / FRAMES_DIR
-        frames = sorted(int(m.group(1)) for f in (frames_dir.iterdir() if frames_dir.is_dir() else [])
-                        if (m := _FRAME_PATTERN.match(f.name)))
+        frames = layout.frames_on_disk()
         if not frames:
-            raise SimulationError(f"{frames_dir}: no frame_*.npz files (the run wrote no frames)")
+            raise SimulationError(f"{layout.frames_dir}: no frame_*.npz files (the run wrote no frames)")
+        _check_one_run(layout, frames)
         return cls(root, scene, particles, frames)
 
     def fingerprint(self) -> str:
@@ -154,7 +234,7 @@ class Simulation:
         return [obj.name for obj in self.scene.objects]
 
     def frame_path(self, index: int) -> Path:
-        return self.root / FRAMES_DIR / frame_file_name(index)
+        return SimLayout(self.root).frame_path(index)
 
     def select_frames(self, spec: str | None) -> list[int]:
         """Frames named by ``spec``: None (all), ``a`` (one), ``a:b`` (a up to but not including
@@ -186,7 +266,7 @@ class Simulation:
     def load_frame(self, index: int, device: torch.device | None = None) -> SimFrame:
         """Frame ``index`` as tensors (SimulationError naming the file if it is unusable)."""
         path = self.frame_path(index)
-        arrays = _load_npz(path, FRAME_ARRAYS, OPTIONAL_FRAME_ARRAYS)
+        arrays = _load_npz(path, RENDER_ARRAYS, OPTIONAL_FRAME_ARRAYS)
         count = len(self.particles)
         shapes = {"x": (count, 3), "F_E": (count, 3, 3), "fractured": (count,), "fragment_id": (count,),
                   "damage": (count,)}

@@ -22,16 +22,16 @@ import cv2
 import numpy as np
 import torch
 
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
 from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
-from fracture_gs.mpm.output import PARTICLES_FILE, SCENE_FILE
+from fracture_gs.io.sim_layout import PARTICLES_FILE, SCENE_FILE
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.render_info import (RENDER_INFO_FILE, RenderInfo, RenderInfoError,
                                             read_render_info)
 from fracture_gs.render.video import to_uint8
 from fracture_gs.render.views import View
-from fracture_gs.sim.folder import Simulation, SimulationError
 
 DEFAULT_RESOLUTION = (400, 400)
 _PNG_NAME = re.compile(r"^(\d{5,})\.png$")
@@ -143,7 +143,7 @@ def check_run(spec: RunSpec) -> Simulation:
 def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
     """The cameras of ``spec`` (``orbit:N`` / ``train`` / ``test`` / cameras.json), framed as
     ``render.py`` frames them for the whole run."""
-    from fracture_gs.cli.render import resolve_views
+    from fracture_gs.render.sim_views import resolve_views
     from fracture_gs.render.views import ViewSpecError
 
     try:

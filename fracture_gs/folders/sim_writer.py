@@ -1,16 +1,11 @@
-"""Output folder of a simulation and the checkpoint behind ``--resume``.
+"""Writing a simulation folder (layout: :mod:`fracture_gs.io.sim_layout`) and the checkpoint
+behind ``--resume``.
 
-Layout of ``output/sims/<name>/``::
-
-    scene.yaml          the resolved scene (defaults filled in)
-    particles.npz       constant per-particle data (mass, rest_volume, obj_id, part_id,
-                        is_surface, rest_x, gaussian_index)
-    frames/frame_00000.npz   x, v, F_E, alpha, damage (float32), fractured (bool), fragment_id
-                        (int32); frame 0 = start. alpha is the material state (NACC's α; for
-                        brittle particles their damage d, as in ``damage``, which is 0 elsewhere)
-    diagnostics.csv     one row per frame (columns: :func:`diagnostics_columns`)
-    diagnostics.png     momentum and energies over time
-    checkpoint.npz      the solver's full state after the last complete frame
+``particles.npz`` holds mass, rest_volume, obj_id, part_id, material_id, is_surface, rest_x and
+gaussian_index; a frame file x, v, F_E, alpha, damage (float32), fractured (bool) and
+fragment_id (int32); alpha is the material state (NACC's α; for brittle particles their damage
+d, as in ``damage``, which is 0 elsewhere). ``diagnostics.csv`` has the columns of
+:func:`diagnostics_columns`.
 
 Every file is written to a temporary name in the same folder and renamed into place, so a
 killed run never leaves a half-written file. For each frame the checkpoint is written
@@ -22,10 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-import os
-import zipfile
-import zlib
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,24 +26,18 @@ import numpy as np
 import torch
 import yaml
 
-from fracture_gs.mpm.types import ParticleSet, SimState
+from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
+from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
+                                   write_text_atomic)
+from fracture_gs.io.manifest import Manifest, remove_written_tree
+from fracture_gs.io.sim_layout import SimLayout
 
-SCENE_FILE = "scene.yaml"
-PARTICLES_FILE = "particles.npz"
-FRAMES_DIR = "frames"
-CHECKPOINT_FILE = "checkpoint.npz"
 _SOLVER_PREFIX = "solver/"
-DIAGNOSTICS_CSV = "diagnostics.csv"
-DIAGNOSTICS_PNG = "diagnostics.png"
-FRAME_ARRAYS = ("x", "v", "F_E", "alpha", "fractured")  # every frame has these; new runs add damage
+
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
 OBJECT_COLUMNS = ("px", "py", "pz", "kinetic")
 TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z", "fracture_energy")
-
-
-def frame_file_name(frame: int) -> str:
-    return f"frame_{frame:05d}.npz"
 
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
@@ -95,115 +81,6 @@ def diagnostics_row(frame: int, time: float, steps: int, dt_min: float,
     return row
 
 
-def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None,
-                 damage: torch.Tensor | None = None) -> dict[str, np.ndarray]:
-    """The per-frame arrays from a solver state (float32, fractured bool), plus ``fragment_id``
-    (int32 connected piece of every particle) and ``damage`` (float32 brittle damage, 0 for other
-    models) when given."""
-    def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
-        return t.detach().cpu().numpy().astype(dtype, copy=False)
-
-    arrays = {"x": array(state.x, np.float32), "v": array(state.v, np.float32),
-              "F_E": array(state.F_E, np.float32), "alpha": array(state.alpha, np.float32),
-              "fractured": array(state.fractured, np.bool_)}
-    if fragment_id is not None:
-        arrays["fragment_id"] = array(fragment_id, np.int32)
-    if damage is not None:
-        arrays["damage"] = array(damage, np.float32)
-    return arrays
-
-
-def particle_arrays(particles: ParticleSet) -> dict[str, np.ndarray]:
-    """The constant per-particle arrays of ``particles.npz``."""
-    def array(t: torch.Tensor) -> np.ndarray:
-        return t.detach().cpu().numpy()
-
-    return {"mass": array(particles.mass), "rest_volume": array(particles.rest_volume),
-            "obj_id": array(particles.obj_id), "part_id": array(particles.part_id),
-            "material_id": array(particles.material_id),
-            "is_surface": array(particles.is_surface), "rest_x": array(particles.x),
-            "gaussian_index": array(particles.gaussian_index)}
-
-
-# ----------------------------------------------------------------------------- atomic writes
-
-
-def atomic_write(path: Path, write: Callable[[io.BufferedWriter], None]) -> None:
-    """Write through ``write(handle)`` to a temporary file beside ``path``, fsync, rename."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as handle:
-            write(handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def save_npz_atomic(path: Path, arrays: Mapping[str, np.ndarray]) -> None:
-    atomic_write(path, lambda handle: np.savez(handle, **arrays))
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    write_bytes_atomic(path, text.encode())
-
-
-def write_bytes_atomic(path: Path, data: bytes) -> None:
-    atomic_write(path, lambda handle: handle.write(data))
-
-
-class OutputError(ValueError):
-    """A file of an output folder that cannot be used: missing, unreadable, truncated or not
-    written by ``simulate.py``. The message is one line naming the file."""
-
-
-def _damaged(path: Path, reason: str) -> OutputError:
-    return OutputError(f"{path}: cannot be read ({reason}); the file is damaged or was not "
-                       "written by simulate.py")
-
-
-def read_npz(path: str | Path) -> dict[str, np.ndarray]:
-    """Every array of an ``.npz`` file written by this module; :class:`OutputError` if the file
-    is missing, unreadable, truncated or not an arrays archive."""
-    path = Path(path)
-    try:
-        with open(path, "rb") as handle:
-            magic = handle.read(4)
-    except FileNotFoundError:
-        raise OutputError(f"{path}: file not found") from None
-    except IsADirectoryError:
-        raise OutputError(f"{path}: is a folder, expected a file") from None
-    except OSError as exc:
-        raise _damaged(path, exc.strerror or type(exc).__name__) from None
-    if not magic.startswith(b"PK"):
-        raise _damaged(path, "empty file" if not magic else "not an .npz archive")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return {key: data[key] for key in data.files}
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-        raise _damaged(path, str(exc).splitlines()[0] if str(exc) else type(exc).__name__) \
-            from None
-
-
-def check_npz_complete(path: Path) -> None:
-    """OutputError unless ``path`` is a complete zip archive (its central directory, at the
-    end of the file, is read; the arrays are not)."""
-    try:
-        with zipfile.ZipFile(path):
-            pass
-    except FileNotFoundError:
-        raise OutputError(f"{path}: file not found") from None
-    except (OSError, zipfile.BadZipFile) as exc:
-        raise _damaged(path, str(exc)) from None
-
-
-def load_frame(path: str | Path) -> dict[str, np.ndarray]:
-    """Read one frame file into a dict of arrays (:class:`OutputError` if it is damaged)."""
-    return read_npz(path)
-
-
 # ----------------------------------------------------------------------------- checkpoint
 
 
@@ -219,71 +96,69 @@ class Checkpoint:
 # ----------------------------------------------------------------------------- the folder
 
 
-class SimulationOutput:
-    """Writes (and, for ``--resume``, reads back) one simulation output folder."""
+class SimulationOutput(SimLayout):
+    """Writes (and, for ``--resume``, reads back) one simulation output folder; every file it
+    writes is recorded in the folder's manifest (:mod:`fracture_gs.io.manifest`)."""
 
     def __init__(self, root: str | Path, object_names: Sequence[str]) -> None:
-        self.root = Path(root)
+        super().__init__(root)
         self.object_names = list(object_names)
         self.columns = diagnostics_columns(self.object_names)
         self.rows: list[list[float]] = []
-
-    # paths
-    @property
-    def scene_path(self) -> Path:
-        return self.root / SCENE_FILE
-
-    @property
-    def particles_path(self) -> Path:
-        return self.root / PARTICLES_FILE
-
-    @property
-    def frames_dir(self) -> Path:
-        return self.root / FRAMES_DIR
-
-    @property
-    def checkpoint_path(self) -> Path:
-        return self.root / CHECKPOINT_FILE
-
-    @property
-    def csv_path(self) -> Path:
-        return self.root / DIAGNOSTICS_CSV
-
-    @property
-    def png_path(self) -> Path:
-        return self.root / DIAGNOSTICS_PNG
-
-    def frame_path(self, frame: int) -> Path:
-        return self.frames_dir / frame_file_name(frame)
+        self.manifest = Manifest.load(self.root)
 
     # writing
     def remove_temporaries(self) -> None:
         """Delete temporary files that a killed run left behind (never complete files)."""
         for folder in (self.root, self.frames_dir):
-            if folder.is_dir():
-                for tmp in folder.glob(".*.tmp"):
-                    tmp.unlink(missing_ok=True)
+            remove_temporaries(folder)
 
-    def start(self, scene: Mapping[str, Any], particles: ParticleSet) -> None:
-        """Begin a fresh run: drop the files of an earlier run, write scene and particles."""
-        self.frames_dir.mkdir(parents=True, exist_ok=True)
+    def clear_earlier_run(self) -> int:
+        """Remove the files the tools wrote for an earlier run in this folder: its frames,
+        checkpoint and diagnostics, and the renders and evaluation made of it; a file they did
+        not write stays. Returns how many files were removed."""
         self.remove_temporaries()
-        for stale in self.frames_dir.glob("frame_*.npz"):
-            stale.unlink()
-        for name in (CHECKPOINT_FILE, DIAGNOSTICS_CSV, DIAGNOSTICS_PNG):
-            (self.root / name).unlink(missing_ok=True)
+        if self.manifest.exists():
+            removed = len(remove_written_tree(self.root))
+        else:  # a folder without a manifest: only the names a simulation writes
+            stale = [*self.frames_dir.glob("frame_*.npz")] if self.frames_dir.is_dir() else []
+            stale += [path for path in (self.checkpoint_path, self.csv_path, self.png_path)
+                      if path.is_file()]
+            for path in stale:
+                path.unlink()
+            removed = len(stale)
+        self.manifest = Manifest(self.root)
+        return removed
+
+    def start(self, scene: Mapping[str, Any], particles: Mapping[str, np.ndarray]) -> None:
+        """Begin a fresh run (after :meth:`clear_earlier_run`): write the scene and the
+        constant particle arrays."""
+        self.frames_dir.mkdir(parents=True, exist_ok=True)
         self.rows = []
+        self.manifest.add(self.scene_path, self.particles_path, self.checkpoint_path,
+                          self.csv_path, self.png_path)
+        self.manifest.save()
         self.write_scene(scene)
-        save_npz_atomic(self.particles_path, particle_arrays(particles))
+        save_npz_atomic(self.particles_path, particles)
+
+    def adopt_frames(self, last: int) -> None:
+        """Record the files of a resumed run (frames 0..``last``) in the manifest: a folder
+        written before the tools kept one gets one."""
+        if not self.manifest.exists():
+            self.manifest.add(self.scene_path, self.particles_path, self.checkpoint_path,
+                              self.csv_path, self.png_path)
+            self.manifest.add(*(self.frame_path(f) for f in range(last + 1)
+                                if self.frame_path(f).is_file()))
+            self.manifest.save()
 
     def write_scene(self, scene: Mapping[str, Any]) -> None:
         text = yaml.safe_dump(dict(scene), sort_keys=False, default_flow_style=None)
         write_text_atomic(self.scene_path, text)
 
-    def write_frame(self, frame: int, state: SimState, row: list[float],
-                    solver_state: Mapping[str, Any], fragment_id: torch.Tensor | None = None,
-                    damage: torch.Tensor | None = None) -> None:
-        """Commit one frame: checkpoint first, then the frame file, then the CSV."""
+    def write_frame(self, frame: int, arrays: Mapping[str, np.ndarray], row: list[float],
+                    solver_state: Mapping[str, Any]) -> None:
+        """Commit one frame (its arrays, the diagnostics row and the solver state for the
+        checkpoint): checkpoint first, then the frame file, then the CSV."""
         if len(row) != len(self.columns):
             raise ValueError(f"diagnostics row has {len(row)} values, expected "
                              f"{len(self.columns)} ({', '.join(self.columns)})")
@@ -293,7 +168,10 @@ class SimulationOutput:
         payload.update(frame=np.int64(frame), rows=np.asarray(self.rows, dtype=np.float64),
                        columns=np.asarray(self.columns, dtype=np.str_))
         save_npz_atomic(self.checkpoint_path, payload)
-        save_npz_atomic(self.frame_path(frame), frame_arrays(state, fragment_id, damage))
+        if self.frame_path(frame) not in self.manifest:   # recorded before the file appears
+            self.manifest.add(self.frame_path(frame))
+            self.manifest.save()
+        save_npz_atomic(self.frame_path(frame), arrays)
         self.write_csv()
 
     def write_csv(self) -> None:
@@ -311,7 +189,7 @@ class SimulationOutput:
         data = read_npz(self.checkpoint_path)
         missing = [key for key in ("columns", "frame", "rows") if key not in data]
         if missing:
-            raise _damaged(self.checkpoint_path, f"no '{missing[0]}' array")
+            raise damaged_file(self.checkpoint_path, f"no '{missing[0]}' array")
         columns = [str(c) for c in data["columns"]]
         if columns != self.columns:
             raise OutputError(f"{self.checkpoint_path}: diagnostics columns {columns} differ "
@@ -319,7 +197,7 @@ class SimulationOutput:
         rows = data["rows"]
         frame = int(data["frame"])
         if rows.ndim != 2 or rows.shape[0] != frame + 1 or rows.shape[1] != len(columns):
-            raise _damaged(self.checkpoint_path, f"{rows.shape} diagnostics rows for frame {frame}")
+            raise damaged_file(self.checkpoint_path, f"{rows.shape} diagnostics rows for frame {frame}")
         solver_state = {key[len(_SOLVER_PREFIX):]: value for key, value in data.items()
                         if key.startswith(_SOLVER_PREFIX)}
         self.rows = [list(map(float, r)) for r in rows]
@@ -364,16 +242,6 @@ def _csv_value(column: str, value: float) -> str:
     if column in ("frame", "steps", "fractured"):
         return str(int(value))
     return repr(float(value)) if math.isfinite(value) else "nan"
-
-
-def read_diagnostics_csv(path: str | Path) -> dict[str, np.ndarray]:
-    """Columns of a ``diagnostics.csv`` as float arrays."""
-    with open(path, newline="") as handle:
-        reader = csv.reader(handle)
-        header = next(reader)
-        values = np.array([[float(v) for v in row] for row in reader], dtype=np.float64)
-    values = values.reshape(-1, len(header))
-    return {name: values[:, i] for i, name in enumerate(header)}
 
 
 def plot_diagnostics(columns: Sequence[str], rows: Sequence[Sequence[float]],

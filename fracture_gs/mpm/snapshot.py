@@ -1,0 +1,40 @@
+"""The arrays a simulation folder stores (:mod:`fracture_gs.folders.sim_writer`), taken from the
+solver's particles and state."""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+
+from fracture_gs.mpm.types import ParticleSet, SimState
+
+
+def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None,
+                 damage: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+    """The per-frame arrays from a solver state (float32, fractured bool), plus ``fragment_id``
+    (int32 connected piece of every particle) and ``damage`` (float32 brittle damage, 0 for other
+    models) when given."""
+    def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
+        return t.detach().cpu().numpy().astype(dtype, copy=False)
+
+    arrays = {"x": array(state.x, np.float32), "v": array(state.v, np.float32),
+              "F_E": array(state.F_E, np.float32), "alpha": array(state.alpha, np.float32),
+              "fractured": array(state.fractured, np.bool_)}
+    if fragment_id is not None:
+        arrays["fragment_id"] = array(fragment_id, np.int32)
+    if damage is not None:
+        arrays["damage"] = array(damage, np.float32)
+    return arrays
+
+
+def particle_arrays(particles: ParticleSet) -> dict[str, np.ndarray]:
+    """The constant per-particle arrays of ``particles.npz``."""
+    def array(t: torch.Tensor) -> np.ndarray:
+        return t.detach().cpu().numpy()
+
+    return {"mass": array(particles.mass), "rest_volume": array(particles.rest_volume),
+            "obj_id": array(particles.obj_id), "part_id": array(particles.part_id),
+            "material_id": array(particles.material_id),
+            "is_surface": array(particles.is_surface), "rest_x": array(particles.x),
+            "gaussian_index": array(particles.gaussian_index)}
