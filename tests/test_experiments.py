@@ -80,6 +80,14 @@ def test_finished_jobs_are_skipped(tmp_path: Path) -> None:
     assert second.skipped
 
 
+def test_jobs_show_the_solvers_progress_when_asked(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    config = load_scene(CONFIGS / "experiments" / "hardening.yaml")
+    run_jobs([SimJob.of(config, tmp_path / "quiet")])
+    assert f"{config.name}:" not in capsys.readouterr().err
+    run_jobs([SimJob.of(config, tmp_path / "shown")], progress=True)
+    assert f"{config.name}: 100%" in capsys.readouterr().err     # the tqdm bar, named by the scene
+
+
 def test_ray_runs_jobs_on_a_local_cluster(tmp_path: Path) -> None:
     pytest.importorskip("ray")
     config = load_scene(CONFIGS / "experiments" / "hardening.yaml")

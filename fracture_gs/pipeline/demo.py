@@ -281,7 +281,9 @@ def stage_simulate(demo: Demo) -> None:
     # a run that is complete for the same scene is kept, unless an earlier stage was redone
     # (new models under the same paths) or --force
     stale = demo.force or demo.redone_from != "simulate"
-    run_jobs(jobs, workers=demo.workers, force=stale, on_done=done)
+    print(f"[demo] simulating {', '.join(job.name for job in jobs)}: {demo.profile.frames} frames each"
+          + (f", {demo.workers} at a time" if demo.workers > 1 else ""), flush=True)
+    run_jobs(jobs, workers=demo.workers, force=stale, on_done=done, progress=None)
 
 
 def stage_render(demo: Demo) -> None:

@@ -67,8 +67,10 @@ def is_complete(job: SimJob) -> bool:
     return written == parse_scene(job.scene).to_dict() and last.is_file()
 
 
-def run_job(job: SimJob, force: bool = False, threads: int | None = None) -> JobResult:
-    """Run one job in this process (the function local workers and Ray tasks call)."""
+def run_job(job: SimJob, force: bool = False, threads: int | None = None,
+            progress: bool | None = False) -> JobResult:
+    """Run one job in this process (the function local workers and Ray tasks call);
+    ``progress``: the solver's progress bar (None: only on a terminal)."""
     import torch
 
     from fracture_gs.pipeline.simulate import run_simulation
@@ -82,7 +84,7 @@ def run_job(job: SimJob, force: bool = False, threads: int | None = None) -> Job
     log = io.StringIO()
     try:
         run_simulation(parse_scene(job.scene), out_dir, device=torch.device("cpu"),
-                       progress=False, log=log)
+                       progress=progress, log=log)
     except Exception as exc:
         raise RunFailed(f"simulation '{job.name}' ({out_dir}): {exc}") from None
     return JobResult(job.name, job.out_dir, time.perf_counter() - started, False, log.getvalue())
@@ -93,9 +95,10 @@ def _threads_per_worker(workers: int) -> int:
 
 
 def run_jobs(jobs: Sequence[SimJob], workers: int = 1, ray_address: str | None = None,
-             force: bool = False, on_done: Callable[[JobResult], None] | None = None
-             ) -> list[JobResult]:
-    """Run every job and return the results in job order (RunFailed on the first failure)."""
+             force: bool = False, on_done: Callable[[JobResult], None] | None = None,
+             progress: bool | None = False) -> list[JobResult]:
+    """Run every job and return the results in job order (RunFailed on the first failure);
+    ``progress``: each local run's progress bar (None: only on a terminal; Ray runs show none)."""
     names = [job.out_dir for job in jobs]
     if len(set(names)) != len(names):
         raise RunFailed("two jobs write the same folder")
@@ -108,7 +111,7 @@ def run_jobs(jobs: Sequence[SimJob], workers: int = 1, ray_address: str | None =
     if workers <= 1 or len(jobs) <= 1:
         results = []
         for job in jobs:
-            results.append(run_job(job, force))
+            results.append(run_job(job, force, progress=progress))
             if on_done:
                 on_done(results[-1])
         return results
@@ -116,7 +119,7 @@ def run_jobs(jobs: Sequence[SimJob], workers: int = 1, ray_address: str | None =
     by_dir: dict[str, JobResult] = {}
     context = multiprocessing.get_context("spawn")  # no fork of an OpenMP / torch process
     with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(run_job, job, force, threads): job for job in jobs}
+        futures = {pool.submit(run_job, job, force, threads, progress): job for job in jobs}
         for future in as_completed(futures):
             result = future.result()
             by_dir[result.out_dir] = result
