@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--iterations", type=int, default=None,
                         help=f"Gaussian fitting iterations (default {PRESETS['default']['iterations']})")
     parser.add_argument("--sdf-res", type=int, default=None,
-                        help="SDF grid cells along the longest side (default 128)")
+                        help="SDF grid cells along the longest side (default 160; paper preset 256)")
     parser.add_argument("--sdf-iters", type=int, default=None,
                         help="NeuS-style SDF refinement iterations after the stereo carving; "
                              "0 keeps the visual hull (no carving either) (default 300)")
