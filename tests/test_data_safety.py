@@ -132,8 +132,11 @@ def test_rerun_replaces_what_the_tools_wrote_and_keeps_user_files(tmp_path: Path
         manifest.add(folder / name)
         manifest.save()
     user = put_user_files([out, layout.frames_dir, renders, renders / "orbit_00", evaluation])
+    kept_run = simulate(out / "kept_run", small_scene(frames=1))   # another run inside this one
 
     simulate(out, small_scene(frames=1))
+    assert SimLayout(kept_run).frames_on_disk() == [0, 1]
+    assert Simulation.open(kept_run).frames == [0, 1]
     assert layout.frames_on_disk() == [0, 1]
     assert not (renders / "orbit_00" / "00003.png").exists()
     assert not (evaluation / "metrics.json").exists()

@@ -61,13 +61,15 @@ def test_generate_small_dataset_end_to_end(tmp_path):
     assert min(silhouette_ious(out)) >= 0.95  # tiny images: boundary pixels weigh more
     with pytest.raises(FileExistsError, match="already exists"):
         generate_dataset("teapot", out, settings, progress=False)
-    # --force replaces a dataset the generator wrote, and leaves nothing else behind
+    # --force replaces a dataset the generator wrote, leaves none of its files behind and keeps
+    # the files it did not write
     first = json.loads((tmp_path / "teapot" / "generator.json").read_text())
-    (tmp_path / "teapot" / "stale.txt").write_text("from the first run")
+    (tmp_path / "teapot" / "notes.txt").write_text("a user's file")
     again = GeneratorSettings(width=40, height=40, n_train=1, n_test=1, spp=4, seed=2,
                               resolution=32)
     generate_dataset("teapot", out, again, overwrite=True, progress=False)
     assert json.loads((tmp_path / "teapot" / "generator.json").read_text())["settings"]["seed"] == 2
     assert first["settings"]["seed"] == 1
-    assert not (tmp_path / "teapot" / "stale.txt").exists()
+    assert not (tmp_path / "teapot" / "train" / "r_1.png").exists()   # the first run's 2nd view
+    assert (tmp_path / "teapot" / "notes.txt").read_text() == "a user's file"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["teapot"]   # no .partial / .replaced

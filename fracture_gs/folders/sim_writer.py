@@ -30,7 +30,7 @@ from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, dama
 from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
                                    write_text_atomic)
 from fracture_gs.io.manifest import Manifest, remove_written_tree
-from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.io.sim_layout import SimLayout, is_simulation_folder
 
 _SOLVER_PREFIX = "solver/"
 
@@ -119,7 +119,7 @@ class SimulationOutput(SimLayout):
         not write stays. Returns how many files were removed."""
         self.remove_temporaries()
         if self.manifest.exists():
-            removed = len(remove_written_tree(self.root))
+            removed = len(remove_written_tree(self.root, separate=is_simulation_folder))
         else:  # a folder without a manifest: only the names a simulation writes
             stale = [*self.frames_dir.glob("frame_*.npz")] if self.frames_dir.is_dir() else []
             stale += [path for path in (self.checkpoint_path, self.csv_path, self.png_path)

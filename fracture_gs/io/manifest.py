@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from fracture_gs.io.atomic import write_text_atomic
@@ -106,13 +106,19 @@ def record_written_since(folder: str | os.PathLike, before: dict[str, tuple[int,
     manifest.save()
 
 
-def remove_written_tree(folder: str | os.PathLike) -> list[Path]:
+def remove_written_tree(folder: str | os.PathLike,
+                        separate: Callable[[Path], bool] | None = None) -> list[Path]:
     """:meth:`Manifest.remove_written` for ``folder`` and every folder below it that holds a
-    manifest (a simulation with its renders and evaluation); returns the files deleted."""
+    manifest (a simulation with its renders and evaluation); returns the files deleted. A folder
+    below for which ``separate(path)`` is true (another run kept inside this one) is left alone,
+    with everything below it."""
     root = Path(folder)
     if not root.is_dir():
         return []
+    manifests = [path.parent for path in root.rglob(MANIFEST_FILE)]
+    apart = [path for path in manifests if path != root and separate is not None and separate(path)]
     removed = []
-    for path in sorted(root.rglob(MANIFEST_FILE), key=lambda p: len(p.parts), reverse=True):
-        removed += Manifest.load(path.parent).remove_written()
+    for path in sorted(manifests, key=lambda p: len(p.parts), reverse=True):
+        if not any(path == other or other in path.parents for other in apart):
+            removed += Manifest.load(path).remove_written()
     return removed

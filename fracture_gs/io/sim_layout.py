@@ -53,6 +53,11 @@ def frame_number(name: str) -> int | None:
     return int(match.group(1)) if match else None
 
 
+def is_simulation_folder(path: Path) -> bool:
+    """Whether ``path`` holds a simulation (its scene file)."""
+    return (path / SCENE_FILE).is_file()
+
+
 def renders_dir_name(fpgo: bool) -> str:
     """render.py's default output folder inside the simulation folder."""
     return RENDERS_DIR if fpgo else RENDERS_NOFPGO_DIR

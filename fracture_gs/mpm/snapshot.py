@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from fracture_gs.io.sim_layout import FRAME_ARRAYS
 from fracture_gs.mpm.types import ParticleSet, SimState
 
 
@@ -18,9 +19,8 @@ def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None,
     def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
         return t.detach().cpu().numpy().astype(dtype, copy=False)
 
-    arrays = {"x": array(state.x, np.float32), "v": array(state.v, np.float32),
-              "F_E": array(state.F_E, np.float32), "alpha": array(state.alpha, np.float32),
-              "fractured": array(state.fractured, np.bool_)}
+    arrays = {name: array(getattr(state, name), np.bool_ if name == "fractured" else np.float32)
+              for name in FRAME_ARRAYS}
     if fragment_id is not None:
         arrays["fragment_id"] = array(fragment_id, np.int32)
     if damage is not None:
