@@ -68,6 +68,16 @@ def test_sim_evaluation_follows_the_protocol(sim: Path, evaluated: Path) -> None
         assert (evaluated / name).stat().st_size > 1000, name
     conservation = metrics["conservation"][str(sim)]
     assert conservation["momentum_drift"] < 1e-5   # no gravity, no wall reached
+    # pieces per object at the last frame add up to the fragments column of diagnostics.csv
+    header = (sim / "diagnostics.csv").read_text().splitlines()[0].split(",")
+    fragments = np.loadtxt(sim / "diagnostics.csv", delimiter=",", skiprows=1,
+                           usecols=header.index("fragments"))
+    pieces = metrics["pieces"]
+    assert [row["object"] for row in pieces] == ["left", "right"]
+    assert sum(row["pieces"] for row in pieces) == int(fragments[-1])
+    assert sum(row["pieces_first_frame"] for row in pieces) == int(fragments[0])
+    assert all(0 < row["largest_share"] <= 1 for row in pieces)
+    assert "## Pieces" in report and "pieces (first → last frame)" in report
     assert conservation["energy_rise"] <= 0.01
 
 

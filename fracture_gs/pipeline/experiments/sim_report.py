@@ -8,7 +8,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from fracture_gs.folders.sim_reader import Simulation, SimulationError, load_frame
 from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.metrics.pieces import last_frame_pieces, object_pieces
 from fracture_gs.metrics.paired import DEFAULT_CONFIDENCE, paired_differences
 from fracture_gs.metrics.protocol import MetricNetworks
 from fracture_gs.pipeline.experiments.sim_eval import EvalOptions, RunResult, RunSpec, evaluate_run
@@ -56,6 +58,10 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
     if paired:
         sections.append(("Paired comparison", paired_section(paired)))
 
+    pieces = run_pieces(specs)
+    if pieces:
+        sections.append(("Pieces", pieces_section(pieces)))
+
     strip_rows = [(result.spec.label, result.strip,
                    [f"ref {f}" if i == 0 else f"t={f}" for i, f in enumerate(result.strip_frames)])
                   for result in results if result.strip]
@@ -85,11 +91,47 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
                          + f"\n![momentum]({momentum_png.name})\n\n![energy]({energy_png.name})\n"))
 
     metrics = {"title": title, "views": options.views, "resolution": list(options.resolution),
-               "window": options.window, "runs": runs, "paired": paired, "conservation": conservation,
+               "window": options.window, "runs": runs, "paired": paired, "pieces": pieces,
+               "conservation": conservation,
                "seconds": time.perf_counter() - started}
     write_text_atomic(out_dir / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     write_report(out_dir / "report.md", title, sections)
     return metrics
+
+
+def run_pieces(specs: Sequence[RunSpec]) -> list[dict]:
+    """Per run (label) and object: the pieces at the first and the last frame
+    (:mod:`fracture_gs.metrics.pieces`); runs whose frames carry no fragment labels are left out."""
+    rows = []
+    for spec in specs:
+        try:
+            sim = Simulation.open(spec.sim)
+            last = last_frame_pieces(sim)
+            if last is None:
+                continue
+            start = load_frame(sim.frame_path(sim.frames[0]))
+        except SimulationError:
+            continue
+        first = object_pieces(start["fragment_id"], sim.particles.obj_id, sim.object_names,
+                              sim.frames[0], start.get("damage"))
+        rows += [{"label": spec.label, "object": end.name, "pieces_first_frame": begin.pieces,
+                  **end.to_json()} for begin, end in zip(first, last)]
+    return rows
+
+
+def pieces_section(pieces: Sequence[dict]) -> str:
+    """Markdown of :func:`run_pieces`: one row per run and object."""
+    rows = [[row["label"], row["object"], f"{row['pieces_first_frame']} → {row['pieces']}",
+             f"{100 * row['largest_share']:.1f} %", f"{100 * row['complete_damage_share']:.1f} %"]
+            for row in pieces]
+    return (table(("run", "object", "pieces (first → last frame)", "largest piece",
+                   "completely damaged"), rows)
+            + "\nA piece is a connected fragment holding at least 1 % of its object's particles "
+            "(docs/formulas.md §8); the largest piece is its share of the object's "
+            "particles at the last frame; completely damaged: brittle particles with damage 1 "
+            "(crushed material and crack faces, which belong to no piece). An intact object can "
+            "count more than one piece at the first frame where its particles are sparser than "
+            "the link distance (thin legs, coarse interiors).\n")
 
 
 def paired_comparisons(results: Sequence[RunResult]) -> list[dict]:
@@ -137,4 +179,7 @@ def print_comparison(metrics: dict, with_paper: bool = False) -> str:
         lines.append(f"{comparison['first']} vs {comparison['second']}: " + "; ".join(
             f"{name.upper()} {advantage_text(comparison[name], name)}"
             for name in ("psnr", "lpips", "fid") if name in comparison))
+    for row in metrics.get("pieces", []):
+        lines.append(f"{row['label']}: {row['object']} in {row['pieces']} pieces of >= 1 % at "
+                     f"frame {row['frame']} (largest {100 * row['largest_share']:.0f} %)")
     return "\n".join(lines)
