@@ -20,7 +20,8 @@ from scipy.spatial import cKDTree
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
 from fragment_scenes import block_drop, colliding_spheres, precracked_bar
-from fracture_gs.mpm.fragments import count_fragments, fragment_ids, fragment_sizes, piece_ranks
+from fracture_gs.mpm.fragments import (count_fragments, fragment_ids, fragment_sizes, link_radius,
+                                      object_link_radii, piece_ranks)
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.types import BLOCK, ContactSettings, Domain
 from kernel_devices import KERNEL_DEVICES
@@ -431,6 +432,31 @@ def test_fragment_ids_label_connected_pieces():
     assert fragment_sizes(labels) == [2, 2, 1]
     assert count_fragments(labels, obj, min_fraction=0.5) == 3
     assert count_fragments(labels, obj, min_fraction=0.6) == 1  # only object 1's single particle
+
+
+def test_objects_sampled_at_different_densities_each_hold_together_at_rest():
+    """A dense lattice (spacing 0.01) and a sparse one (spacing 0.03, as a coarsely sampled trained
+    table beside a finely sampled teapot): each object links with its own spacing, so both are one
+    piece at rest; one radius from the median of all particles would crumble the sparse one."""
+    def lattice(spacing: float, n: int, origin: float) -> torch.Tensor:
+        axis = origin + spacing * torch.arange(n, dtype=torch.float32)
+        return torch.cartesian_prod(axis, axis, axis)
+
+    dense, sparse = lattice(0.01, 12, 0.0), lattice(0.03, 5, 0.5)
+    x = torch.cat([dense, sparse])
+    obj = torch.cat([torch.zeros(len(dense)), torch.ones(len(sparse))]).to(torch.int32)
+    volume = torch.cat([torch.full((len(dense),), 0.01 ** 3), torch.full((len(sparse),), 0.03 ** 3)])
+    radii = object_link_radii(volume, obj, 2)
+    assert torch.allclose(radii, torch.tensor([0.015, 0.045]), rtol=1e-4)
+    per_object = fragment_ids(x, obj, radii)
+    assert count_fragments(per_object, obj) == 2 and fragment_sizes(per_object) == [len(dense), len(sparse)]
+    one_radius = fragment_ids(x, obj, link_radius(volume))           # 0.015: the sparse lattice falls apart
+    assert len(fragment_sizes(one_radius)) == 1 + len(sparse)
+    assert count_fragments(one_radius, obj) == 1     # and none of its crumbs holds 1 % of it
+    # a cut through the sparse object (a gap of 3 spacings) still parts it
+    cut = x.clone()
+    cut[len(dense):][sparse[:, 0] > 0.55, 0] += 0.09
+    assert count_fragments(fragment_ids(cut, obj, radii), obj) == 3
 
 
 def test_piece_ranks_order_the_counted_fragments_by_size():

@@ -27,7 +27,7 @@ import yaml
 from fracture_gs.cli import simulate as cli
 from fracture_gs.pipeline import simulate as stage
 from fracture_gs.config import load_scene
-from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, object_link_radii
 from fracture_gs.folders.sim_writer import diagnostics_columns
 from fracture_gs.folders.sim_reader import load_frame, read_diagnostics_csv
 from fracture_gs.mpm.types import SimState, SimulationBlowUp, StepStats
@@ -127,7 +127,9 @@ class BallisticSolver:
         return total
 
     def fragment_ids(self) -> torch.Tensor:
-        return fragment_ids(self.state.x, self.particles.obj_id, link_radius(self.particles.rest_volume))
+        return fragment_ids(self.state.x, self.particles.obj_id,
+                            object_link_radii(self.particles.rest_volume, self.particles.obj_id,
+                                              len(self.object_names)))
 
     def state_in_input_order(self) -> SimState:
         return self.state  # never reorders its particles

@@ -1,8 +1,9 @@
 """Fragments of a simulation state: connected pieces of each object's particles.
 
-Two particles are linked when they are closer than ``LINK_SPACINGS`` times the rest particle
-spacing (the cube root of the median rest volume) and neither is a brittle particle with complete
-damage (crushed material or a crack face links to nothing); a fragment is a connected component of
+Two particles of one object are linked when they are closer than ``LINK_SPACINGS`` times that
+object's rest particle spacing (the cube root of the median rest volume of its particles: objects
+sampled at different densities, such as a trained teapot and a trained table, each hold together
+at rest) and neither is a brittle particle with complete damage (crushed material or a crack face links to nothing); a fragment is a connected component of
 these links inside one object, computed in C++ on a hash grid
 (:func:`fracture_gs.fracture.spatial.connected_components`). Labels are numbered by the smallest
 particle index of each piece, so they do not depend on the solver's internal particle order when
@@ -25,14 +26,26 @@ def link_radius(rest_volume: torch.Tensor) -> float:
     return LINK_SPACINGS * float(rest_volume.float().median()) ** (1.0 / 3.0)
 
 
-def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float, backend: str = "auto",
+def object_link_radii(rest_volume: torch.Tensor, obj_id: torch.Tensor, n_objects: int) -> torch.Tensor:
+    """(n_objects,) float32 link distance of each object: :func:`link_radius` of its own particles
+    (1.0 for an object without particles)."""
+    radii = [link_radius(rest_volume[obj_id == k]) for k in range(n_objects)]
+    return torch.tensor(radii, dtype=torch.float32, device=rest_volume.device)
+
+
+def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float | torch.Tensor, backend: str = "auto",
                  broken: torch.Tensor | None = None) -> torch.Tensor:
     """(N,) int64 fragment label of every particle (pieces never span two objects), numbered in the
-    order of each piece's smallest particle index. ``broken`` (N,) bool: particles that link to
+    order of each piece's smallest particle index. ``radius``: one link distance, or one per object
+    ((n_objects,) tensor, :func:`object_link_radii`). ``broken`` (N,) bool: particles that link to
     nothing (a brittle particle with complete damage is crushed material or a crack face: a crack
     through an object parts its pieces even while they still touch); each is a piece of its own."""
     if x.shape[0] == 0:
         return torch.zeros(0, dtype=torch.int64, device=x.device)
+    if isinstance(radius, torch.Tensor):
+        # Links never cross objects, so each object's radius becomes 1 in its own scaled copy.
+        x = x / radius.to(x.device, x.dtype)[obj_id.long()][:, None]
+        radius = 1.0
     if broken is None or not bool(broken.any()):
         return connected_components(x, radius, group=obj_id, backend=backend)
     whole = torch.nonzero(~broken).flatten()

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from fracture_gs.mpm import ops
-from fracture_gs.mpm.fragments import count_fragments, fragment_ids, link_radius
+from fracture_gs.mpm.fragments import count_fragments, fragment_ids, object_link_radii
 from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.materials import COLUMN, MaterialTable, elastic_energy, particle_strengths
@@ -107,7 +107,7 @@ class CollisionMPM:
         self.crack_normal = (torch.zeros(len(self.particles), 3, device=self.device) if self.has_brittle else None)
         self._cracked: torch.Tensor | None = None   # rows with a crack normal (cache; None: to be found)
         self._brittle_particle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
-        self.fragment_radius = link_radius(self.particles.rest_volume)
+        self.fragment_radius = object_link_radii(self.particles.rest_volume, self.particles.obj_id, self.n_objects)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
         self.mass_eps = 1e-12 * float(self.particles.mass.mean()) if len(self.particles) else 0.0

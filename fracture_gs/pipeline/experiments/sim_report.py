@@ -129,9 +129,9 @@ def pieces_section(pieces: Sequence[dict]) -> str:
             + "\nA piece is a connected fragment holding at least 1 % of its object's particles "
             "(docs/formulas.md §8); the largest piece is its share of the object's "
             "particles at the last frame; completely damaged: brittle particles with damage 1 "
-            "(crushed material and crack faces, which belong to no piece). An intact object can "
-            "count more than one piece at the first frame where its particles are sparser than "
-            "the link distance (thin legs, coarse interiors).\n")
+            "(crushed material and crack faces, which belong to no piece). An intact object counts "
+            "more than one piece at the first frame only where parts of it are sampled more "
+            "sparsely than the rest of it.\n")
 
 
 def paired_comparisons(results: Sequence[RunResult]) -> list[dict]:
@@ -180,6 +180,7 @@ def print_comparison(metrics: dict, with_paper: bool = False) -> str:
             f"{name.upper()} {advantage_text(comparison[name], name)}"
             for name in ("psnr", "lpips", "fid") if name in comparison))
     for row in metrics.get("pieces", []):
-        lines.append(f"{row['label']}: {row['object']} in {row['pieces']} pieces of >= 1 % at "
+        plural = "" if row["pieces"] == 1 else "s"
+        lines.append(f"{row['label']}: {row['object']} in {row['pieces']} piece{plural} of >= 1 % at "
                      f"frame {row['frame']} (largest {100 * row['largest_share']:.0f} %)")
     return "\n".join(lines)
