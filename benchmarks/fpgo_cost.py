@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from fracture_gs.cli.render import add_interior_options
-from fracture_gs.render.sim_views import resolve_views
+from fracture_gs.pipeline.views import resolve_views
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.frame_gaussians import SceneGaussians

@@ -43,7 +43,7 @@ import numpy as np
 import torch
 
 from fracture_gs.cli.render import add_interior_options
-from fracture_gs.render.sim_views import resolve_views
+from fracture_gs.pipeline.views import resolve_views
 from fracture_gs.fracture.fpgo import FPGOSettings, small_fragment_mask
 from fracture_gs.metrics.onset import fracture_window_from_simulation
 from fracture_gs.render.camera import Camera

@@ -99,7 +99,7 @@ def test_export_ply_renders_like_the_png(cracked_block: Path):
     assert cli.main(["--sim", str(cracked_block), "--views", "orbit:3", "--resolution", "64", "64",
                      "--background", "black", "--export-ply"]) == 0
     out = cracked_block / "renders"
-    from fracture_gs.render.sim_views import resolve_views
+    from fracture_gs.pipeline.views import resolve_views
     from fracture_gs.folders.sim_reader import Simulation
 
     sim = Simulation.open(cracked_block)

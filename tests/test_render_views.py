@@ -99,7 +99,7 @@ def test_frame_selection(three_frames: Simulation):
 
 
 def test_train_and_test_views_are_the_dataset_cameras_moved_with_the_object(tmp_path: Path):
-    from fracture_gs.render.sim_views import resolve_views
+    from fracture_gs.pipeline.views import resolve_views
     from fracture_gs.data import load_dataset
     from render_scenes import write_model
 

@@ -27,7 +27,7 @@ from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.render_info import RENDER_INFO_FILE, RenderInfo, write_render_info
-from fracture_gs.render.sim_views import resolve_views
+from fracture_gs.pipeline.views import resolve_views
 from fracture_gs.render.video import Mp4Writer, to_uint8, write_gif, write_png
 from fracture_gs.render.views import View, ViewSpecError
 

@@ -3,8 +3,9 @@
 * ``orbit:N`` — N cameras evenly spaced on a circle around the scene's bounds (axis = the up
   direction, 20° above the centre), all looking at the centre; the same for every frame.
 * ``train`` / ``test`` — the cameras of that split of the dataset a trained object was
-  reconstructed from (read from its model folder's ``cfg_args``), moved with the object's scene
-  transform so that they see the object as in the photos.
+  reconstructed from, moved with the object's scene transform so that they see the object as in
+  the photos (read by :mod:`fracture_gs.pipeline.views`, which knows the datasets; this module
+  holds the camera math).
 * a path to a ``cameras.json`` in the 3DGS layout (``position`` = camera centre, ``rotation`` =
   camera-to-world rotation with OpenCV axes, ``fx``, ``fy``, ``width``, ``height``), in scene
   coordinates.
@@ -23,7 +24,6 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from fracture_gs.io.model_layout import CFG_ARGS_FILE
 from fracture_gs.render.camera import Camera
 
 ORBIT_ELEVATION_DEG = 20.0
@@ -54,7 +54,7 @@ def check_image_size(width: int, height: int, what: str) -> None:
                             "pixels per side")
 
 
-def _safe_name(name: str) -> str:
+def safe_view_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]", "_", name) or "view"
 
 
@@ -140,12 +140,12 @@ def cameras_from_json(path: str | Path, size: tuple[int, int] | None = None) -> 
             raise ViewSpecError(f"{path}: camera {index}: {exc}") from None
         if size is not None:
             camera = resize_camera(camera, *size)
-        name = _safe_name(str(entry.get("img_name", f"cam_{index:03d}")))
+        name = safe_view_name(str(entry.get("img_name", f"cam_{index:03d}")))
         views.append(View(name, camera))
-    return _unique_names(views)
+    return unique_view_names(views)
 
 
-def _unique_names(views: list[View]) -> list[View]:
+def unique_view_names(views: list[View]) -> list[View]:
     seen: dict[str, int] = {}
     out = []
     for view in views:
@@ -173,49 +173,3 @@ def transform_camera(camera: Camera, rotation: np.ndarray, scale: float,
     moved[:3, 3] = scale * w2c[:3, 3] - rot_cam @ np.asarray(translate, dtype=np.float64)
     return Camera(torch.as_tensor(moved, dtype=torch.float32), camera.fx, camera.fy, camera.cx,
                   camera.cy, camera.width, camera.height, camera.near * scale)
-
-
-def dataset_source(model_dir: Path) -> Path:
-    """The dataset folder a model was trained on (``source_path`` in its ``cfg_args``)."""
-    from fracture_gs.folders.model_folder import read_cfg_args
-
-    cfg = model_dir / CFG_ARGS_FILE
-    if not cfg.is_file():
-        raise ViewSpecError(f"{cfg}: file not found (train/test views need the model's "
-                            "cfg_args with source_path)")
-    try:
-        options = read_cfg_args(str(cfg))
-    except (OSError, ValueError) as exc:
-        raise ViewSpecError(str(exc)) from None
-    if not options.get("source_path"):
-        raise ViewSpecError(f"{cfg}: no source_path in it")
-    source = Path(options["source_path"])
-    if not source.is_absolute():
-        source = (model_dir / source) if (model_dir / source).exists() else Path.cwd() / source
-    if not source.exists():
-        raise ViewSpecError(f"{cfg}: the dataset {source} does not exist")
-    return source
-
-
-def dataset_views(model_dir: Path, split: str, rotation: np.ndarray, scale: float,
-                  translate: Sequence[float], size: tuple[int, int] | None) -> list[View]:
-    """The ``split`` cameras of a model's dataset, moved into the scene by the object transform."""
-    from fracture_gs.data import load_dataset
-    from fracture_gs.data.dataset import DatasetError
-
-    if size is not None:
-        check_image_size(*size, f"--views {split}")
-    source = dataset_source(model_dir)
-    try:
-        data = load_dataset(str(source), split=split)
-    except DatasetError as exc:
-        raise ViewSpecError(f"--views {split}: {exc}") from None
-    views = []
-    for name, camera in zip(data.image_paths, data.cameras):
-        camera = transform_camera(camera, rotation, scale, translate)
-        if size is not None:
-            camera = resize_camera(camera, *size)
-        views.append(View(_safe_name(f"{split}_{Path(name).stem}"), camera))
-    if not views:
-        raise ViewSpecError(f"--views {split}: {source} has no {split} views")
-    return _unique_names(views)

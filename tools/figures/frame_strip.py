@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import torch
 
-from fracture_gs.render.sim_views import resolve_views
+from fracture_gs.pipeline.views import resolve_views
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, FPGOSettings
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.video import to_uint8

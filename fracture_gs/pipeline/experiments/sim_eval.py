@@ -143,7 +143,7 @@ def check_run(spec: RunSpec) -> Simulation:
 def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
     """The cameras of ``spec`` (``orbit:N`` / ``train`` / ``test`` / cameras.json), framed as
     ``render.py`` frames them for the whole run."""
-    from fracture_gs.render.sim_views import resolve_views
+    from fracture_gs.pipeline.views import resolve_views
     from fracture_gs.render.views import ViewSpecError
 
     try:
