@@ -20,8 +20,8 @@ from scipy.spatial import cKDTree
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
 from fragment_scenes import block_drop, colliding_spheres, precracked_bar
-from fracture_gs.mpm.fragments import (count_fragments, fragment_ids, fragment_sizes, link_radius,
-                                      object_link_radii, piece_ranks)
+from fracture_gs.mpm.fragments import (count_fragments, fragment_ids, fragment_sizes, fragments_per_object,
+                                      link_radius, object_link_radii, piece_ranks)
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
 from fracture_gs.mpm.types import BLOCK, ContactSettings, Domain
 from kernel_devices import KERNEL_DEVICES
@@ -432,6 +432,8 @@ def test_fragment_ids_label_connected_pieces():
     assert fragment_sizes(labels) == [2, 2, 1]
     assert count_fragments(labels, obj, min_fraction=0.5) == 3
     assert count_fragments(labels, obj, min_fraction=0.6) == 1  # only object 1's single particle
+    counted, largest = fragments_per_object(labels, obj, 3, min_fraction=0.6)
+    assert counted.tolist() == [0, 1, 0] and largest.tolist() == [2, 1, 0]   # object 2 is empty
 
 
 def test_objects_sampled_at_different_densities_each_hold_together_at_rest():

@@ -10,9 +10,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import torch
 
 from fracture_gs.folders.sim_reader import Simulation, load_frame
-from fracture_gs.mpm.fragments import MIN_FRAGMENT_FRACTION
+from fracture_gs.mpm.fragments import fragments_per_object
 
 
 @dataclass(frozen=True)
@@ -32,19 +33,13 @@ class ObjectPieces:
 def object_pieces(fragment_id: np.ndarray, obj_id: np.ndarray, names: list[str], frame: int,
                   damage: np.ndarray | None = None) -> list[ObjectPieces]:
     """:class:`ObjectPieces` of every object from one frame's per-particle fragment labels."""
-    summary = []
-    for index, name in enumerate(names):
-        mine = obj_id == index
-        count = int(mine.sum())
-        if count == 0:
-            summary.append(ObjectPieces(name, frame, 0, 0.0, 0.0))
-            continue
-        sizes = np.bincount(fragment_id[mine].astype(np.int64))
-        crushed = float((damage[mine] >= 1.0).mean()) if damage is not None else 0.0
-        summary.append(ObjectPieces(name, frame,
-                                    int((sizes >= max(1.0, MIN_FRAGMENT_FRACTION * count)).sum()),
-                                    float(sizes.max()) / count, crushed))
-    return summary
+    labels, objects = torch.from_numpy(fragment_id).long(), torch.from_numpy(obj_id).long()
+    counted, largest = fragments_per_object(labels, objects, len(names))
+    particles = torch.bincount(objects, minlength=len(names)).clamp_min(1)  # 0 / 1 for an empty object
+    crushed = (torch.bincount(objects, weights=torch.from_numpy(damage >= 1.0).double(), minlength=len(names))
+               if damage is not None else torch.zeros(len(names), dtype=torch.float64))
+    return [ObjectPieces(name, frame, int(counted[k]), float(largest[k]) / int(particles[k]),
+                         float(crushed[k]) / int(particles[k])) for k, name in enumerate(names)]
 
 
 def last_frame_pieces(sim: Simulation) -> list[ObjectPieces] | None:

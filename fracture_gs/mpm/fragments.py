@@ -3,11 +3,11 @@
 Two particles of one object are linked when they are closer than ``LINK_SPACINGS`` times that
 object's rest particle spacing (the cube root of the median rest volume of its particles: objects
 sampled at different densities, such as a trained teapot and a trained table, each hold together
-at rest) and neither is a brittle particle with complete damage (crushed material or a crack face links to nothing); a fragment is a connected component of
-these links inside one object, computed in C++ on a hash grid
-(:func:`fracture_gs.fracture.spatial.connected_components`). Labels are numbered by the smallest
-particle index of each piece, so they do not depend on the solver's internal particle order when
-the positions are given in input order.
+at rest) and neither is a brittle particle with complete damage (crushed material or a crack face
+links to nothing); a fragment is a connected component of these links inside one object,
+computed in C++ on a hash grid (:func:`fracture_gs.fracture.spatial.connected_components`).
+Labels are numbered by the smallest particle index of each piece, so they do not depend on the
+solver's internal particle order when the positions are given in input order.
 """
 from __future__ import annotations
 
@@ -60,14 +60,14 @@ def fragment_ids(x: torch.Tensor, obj_id: torch.Tensor, radius: float | torch.Te
 
 
 def _counted_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
-                       min_fraction: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(sizes, counted) per label: the fragment's particle count, and whether it is a fragment
-    holding at least ``min_fraction`` of its object's particles."""
+                       min_fraction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(sizes, counted, owner) per label: the fragment's particle count, whether it is a fragment
+    holding at least ``min_fraction`` of its object's particles, and its object."""
     labels = labels.long()
     sizes = torch.bincount(labels)
     owner = torch.zeros_like(sizes).scatter_(0, labels, obj_id.long())  # object of each fragment
     object_sizes = torch.bincount(obj_id.long())
-    return sizes, (sizes > 0) & (sizes >= min_fraction * object_sizes[owner])
+    return sizes, (sizes > 0) & (sizes >= min_fraction * object_sizes[owner]), owner
 
 
 def count_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
@@ -78,6 +78,21 @@ def count_fragments(labels: torch.Tensor, obj_id: torch.Tensor,
     return int(_counted_fragments(labels, obj_id, min_fraction)[1].sum())
 
 
+def fragments_per_object(labels: torch.Tensor, obj_id: torch.Tensor, n_objects: int,
+                         min_fraction: float = MIN_FRAGMENT_FRACTION) -> tuple[torch.Tensor, torch.Tensor]:
+    """(counted, largest), each (n_objects,) int64: per object, the fragments that
+    :func:`count_fragments` counts and the particle count of its largest fragment (0 for an object
+    without particles)."""
+    counted = torch.zeros(n_objects, dtype=torch.int64, device=labels.device)
+    largest = torch.zeros(n_objects, dtype=torch.int64, device=labels.device)
+    if labels.numel() == 0:
+        return counted, largest
+    sizes, is_counted, owner = _counted_fragments(labels, obj_id, min_fraction)
+    counted.index_add_(0, owner, is_counted.long())
+    largest.scatter_reduce_(0, owner, sizes, "amax")
+    return counted, largest
+
+
 def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
                 min_fraction: float = MIN_FRAGMENT_FRACTION) -> torch.Tensor:
     """(N,) int64 rank of every particle's fragment among the fragments that :func:`count_fragments`
@@ -86,7 +101,7 @@ def piece_ranks(labels: torch.Tensor, obj_id: torch.Tensor,
     the pictures colour by (``tools/figures/fragment_strip.py``, ``view.py``'s "colour by piece")."""
     if labels.numel() == 0:
         return torch.zeros(0, dtype=torch.int64, device=labels.device)
-    sizes, counted = _counted_fragments(labels, obj_id, min_fraction)
+    sizes, counted, _ = _counted_fragments(labels, obj_id, min_fraction)
     candidates = torch.nonzero(counted).flatten()                     # ascending labels
     order = torch.argsort(sizes[candidates], descending=True, stable=True)
     rank_of_label = torch.full_like(sizes, -1)

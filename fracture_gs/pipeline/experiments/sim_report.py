@@ -99,24 +99,28 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
     return metrics
 
 
+def sim_pieces(path: Path) -> list[dict]:
+    """Per object of one simulation: the pieces at the first and the last frame
+    (:mod:`fracture_gs.metrics.pieces`); [] where it cannot be read or its frames carry no
+    fragment labels."""
+    try:
+        sim = Simulation.open(path)
+        last = last_frame_pieces(sim)
+        if last is None:
+            return []
+        start = load_frame(sim.frame_path(sim.frames[0]))
+    except SimulationError:
+        return []
+    first = object_pieces(start["fragment_id"], sim.particles.obj_id, sim.object_names,
+                          sim.frames[0], start.get("damage"))
+    return [{"object": end.name, "pieces_first_frame": begin.pieces, **end.to_json()}
+            for begin, end in zip(first, last)]
+
+
 def run_pieces(specs: Sequence[RunSpec]) -> list[dict]:
-    """Per run (label) and object: the pieces at the first and the last frame
-    (:mod:`fracture_gs.metrics.pieces`); runs whose frames carry no fragment labels are left out."""
-    rows = []
-    for spec in specs:
-        try:
-            sim = Simulation.open(spec.sim)
-            last = last_frame_pieces(sim)
-            if last is None:
-                continue
-            start = load_frame(sim.frame_path(sim.frames[0]))
-        except SimulationError:
-            continue
-        first = object_pieces(start["fragment_id"], sim.particles.obj_id, sim.object_names,
-                              sim.frames[0], start.get("damage"))
-        rows += [{"label": spec.label, "object": end.name, "pieces_first_frame": begin.pieces,
-                  **end.to_json()} for begin, end in zip(first, last)]
-    return rows
+    """:func:`sim_pieces` per run (label); runs of one simulation share its rows."""
+    per_sim = {path: sim_pieces(path) for path in dict.fromkeys(spec.sim for spec in specs)}
+    return [{"label": spec.label, **row} for spec in specs for row in per_sim[spec.sim]]
 
 
 def pieces_section(pieces: Sequence[dict]) -> str:
