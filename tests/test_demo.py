@@ -1,6 +1,6 @@
-"""demo.py end to end at the 'tiny' profile (48x48 images, 6 + 2 views, 300 Gaussians per
-object, 6 frames on a 32^3 grid): datasets, training, scene, both simulations, three renders,
-evaluation; then a second call that skips every finished stage."""
+"""demo.py end to end at the 'tiny' profile (48x48 images, 6 + 2 views, 300 Gaussians for the
+table and 1200 for the hollow teapot, 8 frames on a 32^3 grid): datasets, training, scene, both
+simulations, three renders, evaluation; then a second call that skips every finished stage."""
 from __future__ import annotations
 
 import json
@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -73,3 +74,22 @@ def test_demo_names_a_kept_dataset_made_at_other_sizes(tmp_path: Path) -> None:
     assert "400x400 with 100 + 8 views" in note and f"{profile.image_size}x{profile.image_size}" in note
     (tmp_path / "generator.json").unlink()
     assert "no generator.json" in _dataset_mismatch(tmp_path, profile)
+
+
+def test_a_stage_made_with_other_settings_is_redone() -> None:
+    """The stage log keeps what the demo's code decided (training sizes, the scene's materials and
+    throw): a folder made by a version with other settings is redone, not reused."""
+    from fracture_gs.pipeline.demo import PROFILES, Demo, stage_is_current, stage_settings
+
+    demo = Demo(out=Path("unused"), data=Path("unused"), profile=PROFILES["tiny"], force=False,
+                device=torch.device("cpu"), weights_dir=None, workers=1)
+    scene = stage_settings(demo, "scene")
+    logged = {"seconds": 1.0, "settings": json.loads(json.dumps(scene))}   # as stages.json holds it
+    assert stage_is_current(logged, scene, outputs_exist=True)
+    assert not stage_is_current(logged, {**scene, "speed": 4.0}, outputs_exist=True)
+    assert not stage_is_current({"seconds": 1.0}, scene, outputs_exist=True)   # a log without settings
+    assert not stage_is_current(logged, scene, outputs_exist=False)
+    assert not stage_is_current(None, scene, outputs_exist=True)
+    assert stage_settings(demo, "train")["teapot"]["shell"] > 0     # the porcelain teapot is hollow
+    assert "shell" not in stage_settings(demo, "train")["table"]
+    assert stage_is_current({"seconds": 1.0, "settings": None}, stage_settings(demo, "data"), outputs_exist=True)

@@ -4,7 +4,7 @@ Stages (each skipped when its result exists; ``--force`` redoes them all):
 
 1. ``data``     synthetic teapot and table datasets (Mitsuba 3), if missing;
 2. ``train``    reconstruct both (train.py);
-3. ``scene``    a scene YAML built from the trained objects (collision + NACC + fragments);
+3. ``scene``    a scene YAML built from the trained objects (collision + porcelain + fragments);
 4. ``simulate`` the scene with Collision-MPM, and again with ``contact.mode: mls`` (baseline);
 5. ``render``   ours with FPGO, ours without FPGO, mls without FPGO (PNG + MP4 per view);
 6. ``evaluate`` self-referenced PSNR / LPIPS / FID of the three (report.md, metrics.json).
@@ -38,6 +38,21 @@ STAGES = ("data", "train", "scene", "simulate", "render", "evaluate")
 OBJECTS = ("teapot", "table")
 
 
+# The teapot: porcelain (configs/materials/porcelain.yaml: brittle, scaled so that the impact stress
+# over the strength, rho c v / sigma_F, is the real material's), white inside where it breaks,
+# sampled hollow (TEAPOT_SHELL) as porcelain teapots are. The table: elastic, as dense as stone and
+# 13 times stiffer than the stone preset's scaled E, without fracture: its legs are about one grid
+# cell thick, and with the preset's E they fold under the heavy teapot (with this E they still
+# bend). Thrown down at TEAPOT_SPEED the teapot's rho c v / sigma_F is 3.3 (the stress of hitting a
+# rigid floor) and 2.6 against this table (the teapot dropped on the floor,
+# configs/paper/teapot_ground_porcelain.yaml, has 2.2). docs/materials.md: the presets and the rule.
+TEAPOT_MATERIAL = {"part": 0, "preset": "porcelain", "interior_colour": [0.96, 0.95, 0.92]}
+TABLE_MATERIALS = [{"part": part, "model": "elastic", "E": 2.6e8, "nu": 0.25, "density": 2650}
+                   for part in (0, 1)]
+TEAPOT_SPEED = 10.0   # m/s, downwards
+TEAPOT_SHELL = 0.06   # wall thickness over the teapot's length (train.py --shell)
+
+
 @dataclass(frozen=True)
 class Profile:
     """Sizes of one demo variant."""
@@ -49,6 +64,7 @@ class Profile:
     spp: int
     mesh_grid: int
     train: dict[str, int]        # TrainConfig sizes (the rest as train.py's defaults)
+    teapot_train: dict[str, float]  # the teapot's own sizes over ``train``: hollow, finer particles
     grid: int
     frames: int
     views: int
@@ -62,30 +78,19 @@ PROFILES = {
     "default": Profile("default", 200, 60, 8, 16, 128,
                        {"sdf_res": 64, "sdf_iters": 200, "iterations": 800, "n_surface": 12000,
                         "nv": 8, "particle_res": 24},
+                       {"particle_res": 32, "shell": TEAPOT_SHELL},
                        grid=64, frames=40, views=8, render_size=400),
     "quick": Profile("quick", 128, 24, 4, 4, 64,
                      {"sdf_res": 40, "sdf_iters": 60, "iterations": 200, "n_surface": 3000,
                       "nv": 4, "particle_res": 16, "sdf_rays": 512},
-                     grid=48, frames=16, views=4, render_size=256),
+                     {"n_surface": 12000, "nv": 8, "particle_res": 32, "shell": TEAPOT_SHELL},
+                     grid=64, frames=16, views=4, render_size=256),
     "tiny": Profile("tiny", 48, 6, 2, 1, 32,
                     {"sdf_res": 24, "sdf_iters": 16, "iterations": 24, "n_surface": 300,
                      "nv": 2, "particle_res": 10, "sdf_rays": 256},
-                    grid=32, frames=6, views=2, render_size=64, window=3, frame_dt=0.008),
+                    {"n_surface": 1200, "nv": 4, "particle_res": 16, "shell": TEAPOT_SHELL},
+                    grid=32, frames=8, views=2, render_size=64, window=3, frame_dt=0.008),
 }
-
-# Table 1 of the paper (teapot, table top, legs) as printed: E, nu, density, NACC (Jp0, beta, xi, M).
-# The wave speeds sqrt(E / density) of these values (316, 122 and 316 units/s) set how stiff each
-# part is against the 4 m/s impact; the scenes in configs/ keep the older, softened set
-# (densities x100, table top E x10, elastic legs E 2e6), which simulates ~7x faster but lets the
-# table top stretch like a hammock and the legs bend.
-TEAPOT_MATERIAL = {"part": 0, "model": "nacc", "E": 5.0e5, "nu": 0.46, "density": 5,
-                   "Jp0": 0.98, "beta": 0.5, "xi": 1.0, "M": 2.36}
-TABLE_MATERIALS = [
-    {"part": 0, "model": "nacc", "E": 1.5e4, "nu": 0.39, "density": 1, "Jp0": 0.99,
-     "beta": 0.5, "xi": 1.0, "M": 2.36},
-    {"part": 1, "model": "nacc", "E": 1.0e8, "nu": 0.39, "density": 1000, "Jp0": 0.94,
-     "beta": 2.0, "xi": 3.0, "M": 2.36},
-]
 
 
 def _model_points(model: Path) -> np.ndarray:
@@ -132,7 +137,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
         "name": name if mode == "collision" else f"{name}_mls",
         "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid},
         "frames": frames, "frame_dt": frame_dt, "gravity": [0, 0, -9.8],
-        # Ours opens cracks inside objects (contact.fragments), so the torn table top comes apart
+        # Ours opens cracks inside objects (contact.fragments), so the teapot's pieces come apart
         # instead of hanging together by the grid; the mls baseline (PhysGaussian / GIC style) has
         # no such thing.
         "contact": {"mode": mode, "strength": 1.0, "friction": 0.1, "fragments": mode == "collision"},
@@ -143,7 +148,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
             {"name": "teapot", "model": str(teapot.resolve()),
              "transform": {"scale": round(teapot_scale, 5), "rotate_deg": list(teapot_rotation),
                            "translate": teapot_translate},
-             "velocity": [0, 0, -4], "materials": [TEAPOT_MATERIAL]},
+             "velocity": [0, 0, -TEAPOT_SPEED], "materials": [TEAPOT_MATERIAL]},
             {"name": "table", "model": str(table.resolve()),
              "transform": {"scale": round(table_scale, 5), "translate": table_translate},
              "velocity": [0, 0, 0], "materials": TABLE_MATERIALS},
@@ -234,11 +239,16 @@ def stage_data(demo: Demo) -> None:
         print(f"[demo] data: wrote {folder}")
 
 
+def train_sizes(profile: Profile, name: str) -> dict[str, float]:
+    """The TrainConfig sizes of one object: the profile's, and for the teapot its own over them."""
+    return {**profile.train, **(profile.teapot_train if name == "teapot" else {})}
+
+
 def train_config(demo: Demo, name: str) -> TrainConfig:
     """The train.py configuration of one object (the profile's sizes, white background, no
     intermediate checkpoints)."""
     return TrainConfig(source_path=str(demo.data / name), model_path=str(demo.model(name)),
-                       white_background=True, checkpoint_every=0, **demo.profile.train)
+                       white_background=True, checkpoint_every=0, **train_sizes(demo.profile, name))
 
 
 def stage_train(demo: Demo) -> None:
@@ -246,7 +256,7 @@ def stage_train(demo: Demo) -> None:
 
     for name in OBJECTS:
         options = " ".join(f"--{key.replace('_', '-')} {value}"
-                           for key, value in demo.profile.train.items())
+                           for key, value in train_sizes(demo.profile, name).items())
         print(f"[demo] train.py -s {demo.data / name} -m {demo.model(name)} -w {options} "
               "--checkpoint_every 0", flush=True)
         try:
@@ -339,6 +349,26 @@ def stage_outputs(demo: Demo, stage: str) -> list[Path]:
     return [demo.evaluation / "report.md"]
 
 
+def stage_settings(demo: Demo, stage: str) -> dict | None:
+    """What the demo's own code decides about a stage beyond the profile's name (None: nothing):
+    the training sizes of each object and the scene's materials and throw. The stage log keeps
+    them, so a folder made by an earlier version of these settings is redone, not reused."""
+    if stage == "train":
+        return {name: train_sizes(demo.profile, name) for name in OBJECTS}
+    if stage == "scene":
+        return {"teapot": TEAPOT_MATERIAL, "table": TABLE_MATERIALS, "speed": TEAPOT_SPEED,
+                "grid": demo.profile.grid, "frames": demo.profile.frames, "frame_dt": demo.profile.frame_dt}
+    return None
+
+
+def stage_is_current(logged: dict | None, settings: dict | None, outputs_exist: bool) -> bool:
+    """True when a stage's logged run (None: never run) finished with the same settings (compared
+    as JSON, as the log stores them) and its outputs are still there."""
+    if logged is None or not outputs_exist:
+        return False
+    return logged.get("settings") == json.loads(json.dumps(settings))
+
+
 def run_demo(demo: Demo) -> dict:
     """Run (or skip) every stage, then print the comparison and where the results are."""
     from fracture_gs.pipeline.experiments.sim_report import print_comparison
@@ -354,17 +384,21 @@ def run_demo(demo: Demo) -> dict:
     stages = demo.log.setdefault("stages", {})
     redo_from = None
     for stage in STAGES:
-        finished = stage in stages and all(p.is_file() for p in stage_outputs(demo, stage))
+        settings = stage_settings(demo, stage)
+        outputs_exist = all(p.is_file() for p in stage_outputs(demo, stage))
+        finished = stage_is_current(stages.get(stage), settings, outputs_exist)
         if finished and not demo.force and redo_from is None:
             print(f"[demo] {stage}: done earlier ({stages[stage]['seconds']:.0f} s), skipped")
             continue
+        if stage in stages and outputs_exist and not finished and not demo.force and redo_from is None:
+            print(f"[demo] {stage}: made with other settings than this version's, redone")
         redo_from = redo_from or stage   # a redone stage makes every later one stale
         demo.redone_from = redo_from
         print(f"[demo] {stage} ...", flush=True)
         started = time.perf_counter()
         STAGE_FUNCTIONS[stage](demo)
         stages[stage] = {"seconds": time.perf_counter() - started,
-                         "finished": time.strftime("%Y-%m-%dT%H:%M:%S")}
+                         "finished": time.strftime("%Y-%m-%dT%H:%M:%S"), "settings": settings}
         demo.save_log()
     metrics = json.loads((demo.evaluation / "metrics.json").read_text())
     print()
