@@ -13,14 +13,14 @@ simulate.py folder under --out (``seed_<n>``), which view.py and render.py read.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
 
 import torch
-import yaml
 
-from fracture_gs.config.scene import parse_scene
+from fracture_gs.config.scene import SceneError, load_scene
 from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.metrics.pieces import last_frame_pieces
 from fracture_gs.pipeline.simulate import run_simulation
@@ -46,17 +46,23 @@ def main() -> None:
                         help="folder of the runs (default output/scene_pieces/<scene name>)")
     args = parser.parse_args()
     if args.markdown is not None:
-        print(markdown(json.loads(args.markdown.read_text())))
+        try:
+            table = markdown(json.loads(args.markdown.read_text()))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            parser.error(f"--markdown {args.markdown}: not a result of this script ({exc})")
+        print(table)
         return
     if args.scene is None:
         parser.error("--scene is required (or --markdown JSON)")
+    try:
+        scene = load_scene(args.scene)
+    except (OSError, SceneError) as exc:
+        parser.error(f"--scene {args.scene}: {exc}")
     torch.set_grad_enabled(False)
-    data = yaml.safe_load(args.scene.read_text())
     out = args.out or Path("output/scene_pieces") / args.scene.stem
     runs = []
     for seed in args.seeds:
-        config = parse_scene({**data, "seed": seed}, base_dir=args.scene.parent, default_name=args.scene.stem,
-                             source=args.scene)
+        config = dataclasses.replace(scene, seed=seed)
         folder = out / f"seed_{seed}"
         start = time.perf_counter()
         with open(Path("/dev/null"), "w") as quiet:
@@ -65,7 +71,7 @@ def main() -> None:
         runs.append({"seed": seed, "wall_s": round(time.perf_counter() - start, 1),
                      "objects": [{**p.to_json(), "largest_share": round(p.largest_share, 4),
                                   "complete_damage_share": round(p.complete_damage_share, 4)} for p in pieces]})
-    print(json.dumps({"benchmark": "scene_pieces", "scene": str(args.scene), "grid": data["domain"]["grid"],
+    print(json.dumps({"benchmark": "scene_pieces", "scene": str(args.scene), "grid": scene.domain.grid,
                       "runs": runs}, indent=2))
 
 

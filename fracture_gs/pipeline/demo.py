@@ -386,11 +386,11 @@ def run_demo(demo: Demo) -> dict:
     for stage in STAGES:
         settings = stage_settings(demo, stage)
         outputs_exist = all(p.is_file() for p in stage_outputs(demo, stage))
-        finished = stage_is_current(stages.get(stage), settings, outputs_exist)
-        if finished and not demo.force and redo_from is None:
+        reusable = not demo.force and redo_from is None   # nothing asks for this stage anew
+        if reusable and stage_is_current(stages.get(stage), settings, outputs_exist):
             print(f"[demo] {stage}: done earlier ({stages[stage]['seconds']:.0f} s), skipped")
             continue
-        if stage in stages and outputs_exist and not finished and not demo.force and redo_from is None:
+        if reusable and stage in stages and outputs_exist:
             print(f"[demo] {stage}: made with other settings than this version's, redone")
         redo_from = redo_from or stage   # a redone stage makes every later one stale
         demo.redone_from = redo_from
