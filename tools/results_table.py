@@ -34,6 +34,19 @@ def _sphere_runs() -> tuple[list[dict], dict]:
     return results, results[-1]
 
 
+def scene_pieces_row(name: str, what: str) -> str:
+    """A results row of one ``benchmarks/scene_pieces.py`` JSON: the first object's pieces of >= 1 %,
+    largest piece and crushed share over the seeds."""
+    result = load(name)
+    runs = [run["objects"][0] for run in result["runs"]]
+    pieces = [run["pieces"] for run in runs]
+    largest = [run["largest_share"] for run in runs]
+    crushed = [run["complete_damage_share"] for run in runs]
+    return (f"| {what} (`{result['scene']}`, grid {result['grid']}), {len(runs)} seeds: pieces of ≥ 1 % / "
+            f"largest piece / crushed | {min(pieces)}–{max(pieces)} / {min(largest):.0%}–{max(largest):.0%} / "
+            f"{min(crushed):.0%}–{max(crushed):.0%} | `benchmarks/scene_pieces.py` |")
+
+
 def readme_block() -> list[str]:
     """The README's one results table: each row names the benchmark whose JSON holds the figure."""
     spheres, strong = _sphere_runs()
@@ -51,11 +64,6 @@ def readme_block() -> list[str]:
     fragment_cost = mpm["fragment_cost"][0]["ratio"]
     brittle_cost = mpm["brittle_cost"][0]["ratio"]
     sphere_cmd = f"`benchmarks/brittle_sphere.py --fracture-energy {strong['material']['fracture_energy']:g}`"
-    teapot = load("scene_pieces_teapot_ground_porcelain.json")
-    teapot_runs = [run["objects"][0] for run in teapot["runs"]]
-    pieces = [run["pieces"] for run in teapot_runs]
-    largest = [run["largest_share"] for run in teapot_runs]
-    crushed = [run["complete_damage_share"] for run in teapot_runs]
     return [
         "| result | value | printed by |",
         "|---|---|---|",
@@ -68,10 +76,10 @@ def readme_block() -> list[str]:
         f"| largest total energy (kinetic + elastic + gravitational + fracture) over its start, "
         f"{sum(len(result['runs']) for result in spheres)} sphere runs | {energy_peak:.4f} | "
         "`benchmarks/brittle_sphere.py` |",
-        f"| trained porcelain teapot thrown onto the floor (`{teapot['scene']}`, grid {teapot['grid']}), "
-        f"{len(teapot_runs)} seeds: pieces of ≥ 1 % / largest piece / crushed | {min(pieces)}–{max(pieces)} / "
-        f"{min(largest):.0%}–{max(largest):.0%} / {min(crushed):.0%}–{max(crushed):.0%} | "
-        "`benchmarks/scene_pieces.py` |",
+        scene_pieces_row("scene_pieces_teapot_ground_porcelain.json",
+                         "trained porcelain teapot thrown onto the floor"),
+        scene_pieces_row("scene_pieces_teapot_table_porcelain.json",
+                         "the same teapot thrown onto a trained table at 10 m/s"),
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
         f"| Collision-MPM step, {nacc['particles']:,} NACC particles, grid {mpm['grid']}, "
