@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT / "tools" / "figures"))
 from brittle_sphere_table import table as sphere_table  # noqa: E402  (a sibling tool)
 
 SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json")
+NOTCHED_BAR_FILE = "brittle_bar_notched.json"
 
 
 def load(name: str) -> dict:
@@ -45,6 +46,19 @@ def scene_pieces_row(name: str, what: str) -> str:
     return (f"| {what} (`{result['scene']}`, grid {result['grid']}), {len(runs)} seeds: pieces of ≥ 1 % / "
             f"largest piece / crushed | {min(pieces)}–{max(pieces)} / {min(largest):.0%}–{max(largest):.0%} / "
             f"{min(crushed):.0%}–{max(crushed):.0%} | `benchmarks/scene_pieces.py` |")
+
+
+def notched_bar_row() -> str:
+    """The README row of the notched bar: fracture energy per broken area over G_f at each grid."""
+    bar = load(NOTCHED_BAR_FILE)
+    grids = sorted({run["grid"] for run in bar["runs"]})
+    factors = sorted({run["factor"] for run in bar["runs"]})
+    ratios = [run["energy_per_broken_area_over_Gf"] for run in bar["runs"]]
+    shown = "–".join(f"{value:.2f}" for value in (min(ratios), max(ratios))) if None not in ratios else "no break"
+    return (f"| notched brittle bar ({bar['ligament']:.0%} of the cross-section left) pulled apart at "
+            f"{' and '.join(f'{f:g}' for f in factors)} × its strength, grids {' and '.join(map(str, grids))}: "
+            f"fracture energy per broken area / G_f | {shown} | `benchmarks/brittle_bar.py --ligament "
+            f"{bar['ligament']:g}` |")
 
 
 def readme_block() -> list[str]:
@@ -82,6 +96,7 @@ def readme_block() -> list[str]:
                          "the same teapot thrown onto a trained table at 10 m/s"),
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
+        notched_bar_row(),
         f"| Collision-MPM step, {nacc['particles']:,} NACC particles, grid {mpm['grid']}, "
         f"{mpm['device']} ({mpm['threads']} threads): M particle-steps/s | "
         f"{nacc['particle_steps_per_s'] / 1e6:.1f} ({low / 1e6:.1f}–{high / 1e6:.1f}) | `benchmarks/bench_mpm.py` |",
@@ -92,14 +107,15 @@ def readme_block() -> list[str]:
     ]
 
 
-def bar_block() -> list[str]:
-    bar = load("brittle_bar.json")
+def bar_block(name: str = "brittle_bar.json") -> list[str]:
+    """The runs of one ``benchmarks/brittle_bar.py`` JSON (a plain or a notched bar), one row each."""
+    bar = load(name)
     lines = ["| grid | strength multiple | pieces | damaged particles | fracture energy per broken area / G_f |",
              "|---|---|---|---|---|"]
     for run in bar["runs"]:
         ratio = run["energy_per_broken_area_over_Gf"]
         lines.append(f"| {run['grid']} ({run['particles']:,} particles) | {run['factor']:g} | {run['pieces']} | "
-                     f"{run['damaged_particles']:,} | {'—' if ratio is None else f'{ratio:.1f}'} |")
+                     f"{run['damaged_particles']:,} | {'—' if ratio is None else f'{ratio:.2f}'} |")
     return lines
 
 
@@ -118,7 +134,8 @@ def mpm_block() -> list[str]:
 BLOCKS = {
     "README.md": {"results": readme_block},
     "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
-                        "brittle-bar": bar_block, "mpm-step": mpm_block},
+                        "brittle-bar": bar_block, "brittle-bar-notched": lambda: bar_block(NOTCHED_BAR_FILE),
+                        "mpm-step": mpm_block},
 }
 
 
