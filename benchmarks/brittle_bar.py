@@ -47,7 +47,7 @@ def bar_scene(grid: int, rate: float, frames: int, frame_dt: float) -> dict:
     return {"name": "brittle_bar", "domain": {"min": [0, 0, 0], "max": [1, 1, 1], "grid": grid}, "frames": frames,
             "frame_dt": frame_dt, "gravity": [0, 0, 0], "boundaries": [], "contact": {"fragments": True},
             "objects": [{"name": "bar", "primitive": {"shape": "box", "size": [LENGTH, WIDTH, WIDTH]},
-                         "transform": {"translate": [0.5, 0.5, 0.5]},
+                         "transform": {"translate": [CENTRE] * 3},
                          "velocity_gradient": [[rate, 0, 0], [0, 0, 0], [0, 0, 0]], "materials": [MATERIAL]}]}
 
 

@@ -49,15 +49,15 @@ def main() -> None:
         try:
             table = markdown(json.loads(args.markdown.read_text()))
         except (OSError, ValueError, KeyError, TypeError) as exc:
-            parser.error(f"--markdown {args.markdown}: not a result of this script ({exc})")
+            parser.exit(2, f"error: --markdown {args.markdown}: not a result of this script ({exc})\n")
         print(table)
         return
     if args.scene is None:
-        parser.error("--scene is required (or --markdown JSON)")
+        parser.exit(2, "error: --scene is required (or --markdown JSON)\n")
     try:
         scene = load_scene(args.scene)
     except (OSError, SceneError) as exc:
-        parser.error(f"--scene {args.scene}: {exc}")
+        parser.exit(2, f"error: --scene {args.scene}: {exc}\n")
     torch.set_grad_enabled(False)
     out = args.out or Path("output/scene_pieces") / args.scene.stem
     runs = []
@@ -65,8 +65,12 @@ def main() -> None:
         config = dataclasses.replace(scene, seed=seed)
         folder = out / f"seed_{seed}"
         start = time.perf_counter()
-        with open(Path("/dev/null"), "w") as quiet:
-            run_simulation(config, folder, device=torch.device("cpu"), progress=False, log=quiet)
+        try:
+            with open(Path("/dev/null"), "w") as quiet:
+                run_simulation(config, folder, device=torch.device("cpu"), progress=False, log=quiet)
+        except KeyboardInterrupt:
+            parser.exit(130, f"interrupted in seed {seed}; its frames so far are in {folder} "
+                             f"(simulate.py --resume continues it)\n")
         pieces = last_frame_pieces(Simulation.open(folder)) or []
         runs.append({"seed": seed, "wall_s": round(time.perf_counter() - start, 1),
                      "objects": [{**p.to_json(), "largest_share": round(p.largest_share, 4),
