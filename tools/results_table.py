@@ -22,7 +22,7 @@ RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "tools" / "figures"))
 from brittle_sphere_table import table as sphere_table  # noqa: E402  (a sibling tool)
 
-SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json")
+SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json", "brittle_sphere_gf5.json")
 NOTCHED_BAR_FILE = "brittle_bar_notched.json"
 
 
@@ -43,9 +43,13 @@ def scene_pieces_row(name: str, what: str) -> str:
     pieces = [run["pieces"] for run in runs]
     largest = [run["largest_share"] for run in runs]
     crushed = [run["complete_damage_share"] for run in runs]
+    def span(values: list, form: str) -> str:
+        low, high = format(min(values), form), format(max(values), form)
+        return low if low == high else f"{low}–{high}"
+
     return (f"| {what} (`{result['scene']}`, grid {result['grid']}), {len(runs)} seeds: pieces of ≥ 1 % / "
-            f"largest piece / crushed | {min(pieces)}–{max(pieces)} / {min(largest):.0%}–{max(largest):.0%} / "
-            f"{min(crushed):.0%}–{max(crushed):.0%} | `benchmarks/scene_pieces.py` |")
+            f"largest piece / crushed | {span(pieces, 'd')} / {span(largest, '.0%')} / "
+            f"{span(crushed, '.0%')} | `benchmarks/scene_pieces.py` |")
 
 
 def notched_bar_row() -> str:
@@ -94,6 +98,8 @@ def readme_block() -> list[str]:
                          "trained porcelain teapot thrown onto the floor"),
         scene_pieces_row("scene_pieces_teapot_table_porcelain.json",
                          "the same teapot thrown onto a trained table at 10 m/s"),
+        scene_pieces_row("scene_pieces_demo_default.json", "`demo.py`: its porcelain teapot thrown onto its table"),
+        scene_pieces_row("scene_pieces_demo_quick.json", "`demo.py --quick`: the same"),
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
         notched_bar_row(),
