@@ -35,6 +35,12 @@ def _sphere_runs() -> tuple[list[dict], dict]:
     return results, results[-1]
 
 
+def _span(values: list, form: str) -> str:
+    """'low–high' of the values in the given format, one value where both ends print alike."""
+    low, high = format(min(values), form), format(max(values), form)
+    return low if low == high else f"{low}–{high}"
+
+
 def scene_pieces_row(name: str, what: str) -> str:
     """A results row of one ``benchmarks/scene_pieces.py`` JSON: the first object's pieces of >= 1 %,
     largest piece and crushed share over the seeds."""
@@ -43,13 +49,9 @@ def scene_pieces_row(name: str, what: str) -> str:
     pieces = [run["pieces"] for run in runs]
     largest = [run["largest_share"] for run in runs]
     crushed = [run["complete_damage_share"] for run in runs]
-    def span(values: list, form: str) -> str:
-        low, high = format(min(values), form), format(max(values), form)
-        return low if low == high else f"{low}–{high}"
-
     return (f"| {what} (`{result['scene']}`, grid {result['grid']}), {len(runs)} seeds: pieces of ≥ 1 % / "
-            f"largest piece / crushed | {span(pieces, 'd')} / {span(largest, '.0%')} / "
-            f"{span(crushed, '.0%')} | `benchmarks/scene_pieces.py` |")
+            f"largest piece / crushed | {_span(pieces, 'd')} / {_span(largest, '.0%')} / "
+            f"{_span(crushed, '.0%')} | `benchmarks/scene_pieces.py` |")
 
 
 def notched_bar_row() -> str:
