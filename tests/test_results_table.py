@@ -1,4 +1,4 @@
-"""The generated results tables of README.md and docs/results.md equal what
+"""The generated results tables of README.md and docs/ equal what
 tools/results_table.py makes of the JSON in benchmarks/results/, so they cannot drift."""
 from __future__ import annotations
 

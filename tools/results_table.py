@@ -1,7 +1,8 @@
-"""Generates the results tables of README.md and docs/results.md from benchmarks/results/*.json.
+"""Generates the results tables of README.md, docs/results.md and docs/materials.md from
+benchmarks/results/*.json.
 
     python tools/results_table.py            # print every generated block
-    python tools/results_table.py --write    # rewrite the blocks in README.md and docs/results.md
+    python tools/results_table.py --write    # rewrite the blocks in README.md and docs/
     python tools/results_table.py --check    # exit 1 when a document differs from the JSON
 
 A generated block sits between ``<!-- generated:NAME -->`` and ``<!-- /generated:NAME -->`` and
@@ -21,6 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
 sys.path.insert(0, str(ROOT / "tools" / "figures"))
 from brittle_sphere_table import table as sphere_table  # noqa: E402  (a sibling tool)
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from scene_pieces import markdown as pieces_table  # noqa: E402  (the benchmark's own table)
 
 SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json", "brittle_sphere_gf5.json")
 NOTCHED_BAR_FILE = "brittle_bar_notched.json"
@@ -60,7 +63,7 @@ def notched_bar_row() -> str:
     grids = sorted({run["grid"] for run in bar["runs"]})
     factors = sorted({run["factor"] for run in bar["runs"]})
     ratios = [run["energy_per_broken_area_over_Gf"] for run in bar["runs"]]
-    shown = "–".join(f"{value:.2f}" for value in (min(ratios), max(ratios))) if None not in ratios else "no break"
+    shown = _span(ratios, ".2f") if None not in ratios else "no break"
     return (f"| notched brittle bar ({bar['ligament']:.0%} of the cross-section left) pulled apart at "
             f"{' and '.join(f'{f:g}' for f in factors)} × its strength, grids {' and '.join(map(str, grids))}: "
             f"fracture energy per broken area / G_f | {shown} | `benchmarks/brittle_bar.py --ligament "
@@ -139,11 +142,20 @@ def mpm_block() -> list[str]:
     return lines
 
 
+def pieces_blocks(*scenes: str) -> dict:
+    """Generated blocks ``pieces-<scene>`` of a document: each scene's ``scene_pieces_<scene>.json`` as
+    ``benchmarks/scene_pieces.py --markdown`` prints it."""
+    return {f"pieces-{scene.replace('_', '-')}": (lambda scene=scene: pieces_table(
+        load(f"scene_pieces_{scene}.json")).splitlines()) for scene in scenes}
+
+
 BLOCKS = {
     "README.md": {"results": readme_block},
     "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
                         "brittle-bar": bar_block, "brittle-bar-notched": lambda: bar_block(NOTCHED_BAR_FILE),
-                        "mpm-step": mpm_block},
+                        "mpm-step": mpm_block, **pieces_blocks("demo_default", "demo_quick")},
+    "docs/materials.md": pieces_blocks("teapot_ground_porcelain", "teapot_table_porcelain",
+                                       "bowl_teapot_porcelain", "ficus_table_porcelain"),
 }
 
 
