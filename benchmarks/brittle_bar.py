@@ -98,7 +98,7 @@ def main() -> None:
                         help="notch the bar: the share of its cross-section left at the centre, in (0, 1)")
     args = parser.parse_args()
     if args.ligament is not None and not 0.0 < args.ligament < 1.0:
-        parser.error(f"--ligament must be in (0, 1), got {args.ligament:g}")
+        parser.exit(2, f"error: --ligament must be in (0, 1), got {args.ligament:g}\n")
     torch.set_grad_enabled(False)
     runs = [run(grid, factor, args.frames, args.frame_dt, args.ligament)
             for grid in args.grids for factor in args.factors]
