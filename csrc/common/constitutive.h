@@ -38,7 +38,7 @@ enum MatField : int {
   kMatXi = 5,                 // NACC xi (hardening)
   kMatM = 6,                  // NACC M (slope of the critical state line)
   kMatStrength = 4,           // brittle: tensile strength sigma_F (median; per-particle values override it)
-  kMatCrackBand = 5,          // brittle: 2 E G_f / h (Pa^2), h the crack band width
+  kMatCrackBand = 5,          // brittle: B = 2 E G_f / (h c_t) (Pa^2), h the crack band width
   kMatResidual = 6,           // brittle: k, share of the tensile stiffness left at d = 1
   kMatFractureThreshold = 7,  // fracture flag: fractured once alpha (nacc) or d (brittle) >= this
   kMatFields = 8
@@ -63,12 +63,28 @@ HOST_DEVICE inline double nacc_yield_tolerance(double p0, double M) { return kNa
 // principal value of the undegraded Cauchy stress. Crack band: in a band of width h the stress
 // falls linearly from the strength s_F to zero while the strain grows to eps_f = 2 G_f / (h s_F), so
 // the band dissipates G_f per unit area; in undegraded-stress terms the line ends at
-// s_f = E eps_f = B / s_F with B = 2 E G_f / h. Along it the stress is g(d) s, hence
+// s_f = E eps_f = r s_F with r0 = B / s_F^2, B = 2 E G_f / (h c_t) (c_t: the share of the uniaxial
+// energy that lies in psi+). Along it the stress is g(d) s, hence
 //   g_target(s) = s_F (s_f - s) / ((s_f - s_F) s)   for s_F < s < s_f (1 at s_F, 0 at s_f),
-// and d follows from g(d) = (1 - d)^2 (1 - k) + k. A band too coarse for the softening (s_f <= s_F)
-// breaks at once. d never decreases: d = max(d_old, d_target(s)), which is d_target of the largest
-// s seen so far because d_target is increasing. Written with selects only (the CPU tiers vectorise
-// it).
+// and d follows from g(d) = (1 - d)^2 (1 - k) + k. r = r0 while r0 <= 3; above, the particles beside
+// the band soften too (brittle_softening_ratio) and r < r0. A band too coarse for the softening
+// (r <= 1) breaks at once. d never decreases: d = max(d_old, d_target(s)), which is d_target of the
+// largest s seen so far because d_target is increasing. Written with selects only (the CPU tiers
+// vectorise it).
+
+// s_f / s_F of a band whose uniform softening would end at r0 = B / s_F^2 times the strength. The
+// quadratic B-spline spreads a velocity jump between two grid nodes over a strain hat two cells
+// wide; of four particle layers at the cells' quarter points, the inner pair is strained three times
+// as much as the outer pair (for scattered particles this is an approximation).
+// In units of c_t s_F^2 / (2E) per unit volume, the inner pair (width h) spends r when it has softened
+// to zero; the outer pair (width h), strained to r / 3, softens too once r > 3 and spends
+// r (r / 3 - 1) / (r - 1). Asking both together to spend G_f = r0 h (same units) gives
+//   4 r^2 - (6 + 3 r0) r + 3 r0 = 0   (r0 > 3; its larger root, 3 at r0 = 3, 3 r0 / 4 for large r0).
+HOST_DEVICE inline double brittle_softening_ratio(double r0) {
+  const double b = 6.0 + 3.0 * r0;
+  const double spread = 0.125 * (b + sqrt(b * b - 48.0 * r0));  // b^2 - 48 r0 = 9 (r0 - 2/3)^2 + 32 > 0
+  return r0 > 3.0 ? spread : r0;
+}
 
 // Degradation g(d) = (1 - d)^2 (1 - k) + k of the tensile part of the energy.
 HOST_DEVICE inline double brittle_degradation(double d, double residual) {
@@ -77,8 +93,9 @@ HOST_DEVICE inline double brittle_degradation(double d, double residual) {
 
 // Damage the Rankine crack-band law reaches at driving stress s (0 while s <= s_F).
 HOST_DEVICE inline double brittle_damage_target(double s, double strength, double crack_band, double residual) {
-  const double s_f = crack_band / strength;  // undegraded stress at which the softening line ends
-  const bool softens = s_f > strength;       // else the band is too coarse: d jumps to 1
+  // undegraded stress at which the softening line ends
+  const double s_f = strength * brittle_softening_ratio(crack_band / (strength * strength));
+  const bool softens = s_f > strength;  // else the band is too coarse: d jumps to 1
   const double span = softens ? (s_f - strength) * s : 1.0;
   const double g_target = softens ? strength * (s_f - s) / span : 0.0;
   double share = (g_target - residual) / (1.0 - residual);  // (1 - d)^2

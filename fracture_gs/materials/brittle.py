@@ -7,9 +7,12 @@ that never decreases (the particle state; frames store it as ``damage``). Formul
 * Rankine driving stress s: the largest principal value of the undegraded Cauchy stress τ₀ / J.
 * Crack band (Bažant & Oh 1983): in a band of width h the stress falls linearly from the
   strength σ_F to zero, so the band dissipates G_f per unit crack area whatever the grid. In
-  undegraded-stress terms the softening line ends at s_f = 2 E G_f / (h σ_F); along it
+  undegraded-stress terms the softening line ends at s_f = σ_F r, r = r0 = B / σ_F² with
+  B = 2 E G_f / (h c_t) while r0 <= 3; above, the particles beside the band soften too and r < r0
+  keeps the band and them at G_f (``softening_ratio``). Along the line
   g_target(s) = σ_F (s_f − s) / ((s_f − σ_F) s), and d solves g(d) = g_target. A band too coarse
-  for the softening (s_f <= σ_F, i.e. h >= 2 E G_f / σ_F²) breaks at once. d = max(d_old, d_target).
+  for the softening (s_f <= σ_F, i.e. h >= 2 E G_f / (c_t σ_F²)) breaks at once.
+  d = max(d_old, d_target).
 * Degradation g(d) = (1 − d)² (1 − k) + k of the tensile part only (Miehe's spectral split: a
   crack closed by compression carries the compression, and volumetric compression is never
   degraded): ψ = g ψ⁺ + ψ⁻, ψ⁺ = μ Σ⟨ε_i⟩₊² + (λ/2)⟨tr ε⟩₊², ψ⁻ = μ Σ⟨ε_i⟩₋² + (λ/2)⟨tr ε⟩₋²,
@@ -46,11 +49,23 @@ def degradation(damage: torch.Tensor, residual: torch.Tensor | float) -> torch.T
     return (1.0 - damage) ** 2 * (1.0 - residual) + residual
 
 
+def softening_ratio(uniform_ratio: torch.Tensor | float) -> torch.Tensor:
+    """s_f / σ_F, where the softening line ends, for r0 = B / σ_F² (``uniform_ratio``): r0 while
+    r0 <= 3, else the larger root of 4 r² − (6 + 3 r0) r + 3 r0 = 0. The quadratic B-spline spreads
+    a crack over four particle layers (at the cells' quarter points), the outer pair strained a third
+    as much as the inner pair; above r0 = 3 the outer pair softens too, and r < r0 keeps the two
+    pairs together at G_f per unit crack area (docs/formulas.md, "Brittle damage")."""
+    r0 = torch.as_tensor(uniform_ratio, dtype=torch.float64)
+    b = 6.0 + 3.0 * r0
+    spread = 0.125 * (b + torch.sqrt(b * b - 48.0 * r0))
+    return torch.where(r0 > 3.0, spread, r0)
+
+
 def damage_target(driving: torch.Tensor, strength: torch.Tensor, crack_band: torch.Tensor,
                   residual: torch.Tensor) -> torch.Tensor:
     """Damage the crack-band law reaches at driving stress s (0 while s <= σ_F); ``crack_band`` is
-    2 E G_f / h, so the softening line ends at s_f = crack_band / σ_F."""
-    s_f = crack_band / strength
+    B = 2 E G_f / (h c_t), so the softening line ends at s_f = σ_F softening_ratio(B / σ_F²)."""
+    s_f = strength * softening_ratio(crack_band / (strength * strength)).to(driving.dtype)
     softens = s_f > strength
     span = torch.where(softens, (s_f - strength) * driving, torch.ones_like(driving))
     g_target = torch.where(softens, strength * (s_f - driving) / span, torch.zeros_like(driving))
@@ -179,9 +194,16 @@ class BrittleMaterial(HenckyElasticity):
         return BAND_CELLS * cell_size
 
     def crack_band(self, cell_size: float) -> float:
-        """B = 2 E G_f / (h · tensile_share) (Pa²): the undegraded stress at which the softening line
-        ends is B / σ_F, so a band in uniaxial tension spends G_f per unit crack area."""
+        """B = 2 E G_f / (h · tensile_share) (Pa²): a band of uniform strain whose softening line
+        ended at B / σ_F would spend G_f per unit crack area in uniaxial tension (``softening_end``
+        says where it ends)."""
         return 2.0 * self.E * self.fracture_energy / (self.band_width(cell_size) * self.tensile_share)
+
+    def softening_end(self, cell_size: float, strength: float | None = None) -> float:
+        """s_f (Pa): the undegraded stress at which the softening line of a particle of the given
+        strength (default σ_F) ends, σ_F softening_ratio(B / σ_F²)."""
+        sigma = self.strength if strength is None else strength
+        return sigma * float(softening_ratio(self.crack_band(cell_size) / sigma ** 2))
 
     def snaps(self, cell_size: float) -> bool:
         """True where the grid is too coarse for the softening (B <= σ_F²): the band breaks at once and
@@ -189,8 +211,8 @@ class BrittleMaterial(HenckyElasticity):
         return self.crack_band(cell_size) <= self.strength ** 2
 
     def band_energy_ratio(self, cell_size: float) -> float:
-        """Energy a band in uniaxial tension spends per unit crack area over G_f: 1 while it softens,
-        σ_F² / B > 1 when it breaks at once."""
+        """Energy a band in uniaxial tension (with the particles beside it, docs/formulas.md) spends per
+        unit crack area over G_f: 1 while it softens, σ_F² / B > 1 when it breaks at once."""
         return max(1.0, self.strength ** 2 / self.crack_band(cell_size))
 
     def pack(self, cell_size: float | None = None) -> list[float]:
