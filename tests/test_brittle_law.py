@@ -246,6 +246,9 @@ def test_a_band_and_its_neighbours_dissipate_the_fracture_energy(backend: str, w
     complete = int(torch.nonzero(damage >= 1.0)[0])
     _, taken_outer = taken_on_path(backend, GLASS, inner[:complete + 1] / 3.0, strength)
     expected = GLASS.fracture_energy / GLASS.band_width(CELL)
+    print(f"[brittle band, {backend}] r0 {r0:.2f}: band + neighbours "
+          f"{float(taken_inner[complete] + taken_outer[-1]) / expected:.4f} x G_f/h, band alone "
+          f"{float(taken_inner[complete]) / expected:.4f} (r / r0 = {s_f / strength / r0:.4f})")
     assert float(taken_inner[complete] + taken_outer[-1]) == pytest.approx(expected, rel=0.03)
     assert float(taken_inner[complete]) == pytest.approx(expected * (s_f / strength) / r0, rel=0.03)
     assert (float(taken_outer[-1]) == 0.0) == (r0 <= 3.0)
