@@ -13,7 +13,7 @@ import torch
 import fracture_gs.materials as mat
 from fracture_gs import _backend
 from fracture_gs.materials import BrittleMaterial, ElasticMaterial, MaterialTable, NACCMaterial
-from fracture_gs.materials.brittle import brittle_energy_reference, hash_uniform
+from fracture_gs.materials.brittle import brittle_energy_reference, degradation, hash_uniform
 from kernel_devices import KERNEL_DEVICES
 
 compiled = _backend.compiled_module()
@@ -194,40 +194,35 @@ def test_damage_starts_within_one_step_of_the_strength_and_never_heals(backend: 
     assert bool((damage[1:] >= damage[:-1]).all())   # never decreases, not even when unloaded
 
 
+def taken_on_path(backend: str, material_index: int, axial: torch.Tensor, strength: float | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(d, energy per unit volume damage has taken so far, Σ (g(d_old) − g(d_new)) ψ⁺) after each step
+    of a uniaxial-stress path of axial Hencky strains, for MATERIALS[material_index] (a brittle one) and
+    the given particle strength (default the material's)."""
+    material = MATERIALS[material_index]
+    path = torch.diag_embed(torch.exp(torch.stack([axial, -material.nu * axial, -material.nu * axial], 1)))
+    damage, _ = run_path(backend, path, material_index, strength=strength)
+    rows = table()[material_index:material_index + 1].double()
+    tensile = material.tensile_energy_rows(path.double(), rows.expand(len(axial), -1))
+    g = degradation(damage, material.residual)
+    g_before = torch.cat([torch.ones(1, dtype=torch.float64), g[:-1]])
+    return damage, torch.cumsum((g_before - g) * tensile, 0)
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_a_band_dissipates_the_fracture_energy(backend: str) -> None:
     """Uniaxial-stress history of one band particle until d = 1: the energy damage takes per unit
     volume, Σ (g(d_old) − g(d_new)) ψ⁺, equals G_f / h (h = the cell size) within 2 %; a band too
     coarse to soften breaks at once and takes σ_F² / B times as much (band_energy_ratio)."""
     for index, material in ((0, GLASS), (3, SNAPPING)):
-        steps = 1500
         s_f = material.softening_end(CELL)
         peak = 1.2 * max(s_f, material.strength) / material.E
-        axial = torch.linspace(0, peak, steps, dtype=torch.float64)
-        path = torch.diag_embed(torch.exp(torch.stack([axial, -material.nu * axial, -material.nu * axial], 1)))
-        damage, _ = run_path(backend, path, index)
+        damage, taken = taken_on_path(backend, index, torch.linspace(0, peak, 1500, dtype=torch.float64))
         assert float(damage[-1]) == 1.0
-        rows = table()[index:index + 1].double()
-        tensile = material.tensile_energy_rows(path.double(), rows.expand(steps, -1))
-        g = (1 - damage) ** 2 * (1 - material.residual) + material.residual
-        g_before = torch.cat([torch.ones(1, dtype=torch.float64), g[:-1]])
-        dissipated = float(((g_before - g) * tensile).sum())
+        dissipated = float(taken[-1])
         expected = material.fracture_energy / material.band_width(CELL) * material.band_energy_ratio(CELL)
         assert dissipated == pytest.approx(expected, rel=0.02), (material, dissipated, expected)
     assert SNAPPING.snaps(CELL) and not GLASS.snaps(CELL)
-
-
-def taken_on_path(backend: str, material: BrittleMaterial, axial: torch.Tensor, strength: float
-                  ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(d, energy per unit volume damage has taken so far) after each step of a uniaxial-stress path of
-    axial Hencky strains, for GLASS's row (``material``) and the given particle strength."""
-    path = torch.diag_embed(torch.exp(torch.stack([axial, -material.nu * axial, -material.nu * axial], 1)))
-    damage, _ = run_path(backend, path, 0, strength=strength)
-    rows = table()[0:1].double()
-    tensile = material.tensile_energy_rows(path.double(), rows.expand(len(axial), -1))
-    g = (1 - damage) ** 2 * (1 - material.residual) + material.residual
-    g_before = torch.cat([torch.ones(1, dtype=torch.float64), g[:-1]])
-    return damage, torch.cumsum((g_before - g) * tensile, 0)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -242,9 +237,9 @@ def test_a_band_and_its_neighbours_dissipate_the_fracture_energy(backend: str, w
     r0 = GLASS.crack_band(CELL) / strength ** 2
     s_f = GLASS.softening_end(CELL, strength)
     inner = torch.linspace(0, 1.2 * s_f / GLASS.E, 3000, dtype=torch.float64)
-    damage, taken_inner = taken_on_path(backend, GLASS, inner, strength)
+    damage, taken_inner = taken_on_path(backend, 0, inner, strength)
     complete = int(torch.nonzero(damage >= 1.0)[0])
-    _, taken_outer = taken_on_path(backend, GLASS, inner[:complete + 1] / 3.0, strength)
+    _, taken_outer = taken_on_path(backend, 0, inner[:complete + 1] / 3.0, strength)
     expected = GLASS.fracture_energy / GLASS.band_width(CELL)
     print(f"[brittle band, {backend}] r0 {r0:.2f}: band + neighbours "
           f"{float(taken_inner[complete] + taken_outer[-1]) / expected:.4f} x G_f/h, band alone "
