@@ -38,8 +38,8 @@ from fracture_gs.mpm.fragments import fragment_ids, fragment_sizes
 from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS
 from scipy.spatial import cKDTree
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
-from fragment_scenes import block_drop, colliding_spheres, precracked_bar  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+from fracture_gs.testing.fragment_scenes import block_drop, colliding_spheres, precracked_bar  # noqa: E402
 
 PIECE_SHARE = 0.02  # pieces of >= 2 % of the particles count
 

@@ -36,8 +36,8 @@ from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
-from lattice import LatticeBody, lattice_sphere, particle_set  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+from fracture_gs.testing.lattice import LatticeBody, lattice_sphere, particle_set  # noqa: E402
 
 
 MATERIALS = {

@@ -5,7 +5,7 @@ isotropic Gaussian (SH degree 3), and a simulation folder with ``--frames`` fram
 ball moves, shears and a growing half of it is fractured (so FPGO runs).
 
 Two sessions, each with a fresh viewer (empty cache): ``probe_only`` — one websocket client
-(``WebsocketProbe`` of tests/headless_browser.py, a minimal viser client in Python) — and
+(``WebsocketProbe`` of fracture_gs/testing/headless_browser.py, a minimal viser client in Python) — and
 ``with_browser`` — the probe plus headless Chromium (system chromium + chromium-driver, WebGL on
 SwiftShader). Every second frame (2, 4, ...; showing a frame prefetches its successor) is shown
 for the first time (cold: prepared on demand), then again (warm: from the LRU cache). From the moment the frame slider is set:
@@ -50,8 +50,8 @@ from fracture_gs.folders.model_folder import write_model_folder
 from fracture_gs.viewer.app import Viewer, ViewerOptions
 from fracture_gs.viewer.sources import SimulationSource
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # scene builders shared with the tests
-from headless_browser import HeadlessBrowser, WebsocketProbe, find_chromium, wait_for  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root
+from fracture_gs.testing.headless_browser import HeadlessBrowser, WebsocketProbe, find_chromium, wait_for  # noqa: E402
 
 TARGET_MS = 1000.0
 WINDOW_SIZE = (480, 360)

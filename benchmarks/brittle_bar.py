@@ -75,10 +75,10 @@ def run(grid: int, factor: float, frames: int, frame_dt: float, ligament: float 
     for _ in range(frames):
         solver.advance(frame_dt)
         diagnostics = solver.diagnostics()
-        peak = max(peak, diagnostics["total_energy"] + diagnostics["fracture_energy"])
-    damage = solver.damage_in_input_order()
+        peak = max(peak, diagnostics["total_energy"] + diagnostics["dissipated_energy"])
+    damage = solver.frame_fields_in_input_order()["damage"]
     pieces = int(diagnostics["fragments"])
-    fracture = float(diagnostics["fracture_energy"])
+    fracture = float(diagnostics["dissipated_energy"])
     section = WIDTH * WIDTH * (1.0 if ligament is None else ligament)
     per_area = fracture / ((pieces - 1) * section * MATERIAL["fracture_energy"]) if pieces > 1 else None
     return {"grid": grid, "dx": round(config.domain.dx, 6), "particles": len(built.particles), "factor": factor,

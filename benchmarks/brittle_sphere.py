@@ -59,12 +59,12 @@ def summary(folder: Path, speed: float, ratio: float, fragments: bool, wall: flo
     onset = int(np.argmax(fractured > 0)) if (fractured > 0).any() else len(pieces)
     after = pieces[onset:] or [pieces[-1]]
     last = load_frame(folder / "frames" / f"frame_{len(pieces) - 1:05d}.npz")
-    total = table["total_energy"] + table["fracture_energy"]
+    total = table["total_energy"] + table["dissipated_energy"]
     return {"speed": round(speed, 3), "stress_over_strength": round(ratio, 3), "fragments": fragments,
             "pieces_per_frame": pieces, "largest_pieces_after_onset": max(after), "pieces_last_frame": pieces[-1],
             "complete_damage_share": round(float((last["damage"] >= 1).mean()), 4),
             "fractured_share": round(float(last["fractured"].mean()), 4),
-            "fracture_energy": round(float(table["fracture_energy"][-1]), 5),
+            "fracture_energy": round(float(table["dissipated_energy"][-1]), 5),
             "energy_peak_over_start": round(float(total.max() / total[0]), 5), "wall_s": round(wall, 1)}
 
 

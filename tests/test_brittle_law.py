@@ -13,7 +13,8 @@ import torch
 import fracture_gs.materials as mat
 from fracture_gs import _backend
 from fracture_gs.materials import BrittleMaterial, ElasticMaterial, MaterialTable, NACCMaterial
-from fracture_gs.materials.brittle import brittle_energy_reference, degradation, hash_uniform
+from fracture_gs.materials.brittle import (brittle_energy_reference, degradation, hash_uniform,
+                                           tensile_energy_reference)
 from kernel_devices import KERNEL_DEVICES
 
 compiled = _backend.compiled_module()
@@ -47,6 +48,12 @@ def table() -> torch.Tensor:
     return MaterialTable(MATERIALS, cell_size=CELL).table()
 
 
+def state_block(damage: torch.Tensor, strength: torch.Tensor | float) -> torch.Tensor:
+    """(N, 5) brittle state: damage (or a NACC particle's α), the particle strengths, no crack normal."""
+    strength = torch.as_tensor(strength, dtype=damage.dtype).expand(len(damage))
+    return torch.cat([damage[:, None], strength[:, None], torch.zeros(len(damage), 3, dtype=damage.dtype)], 1)
+
+
 def relative_error(value: torch.Tensor, reference: torch.Tensor, floor: float) -> float:
     value = value.double().reshape(value.shape[0], -1)
     reference = reference.double().reshape(reference.shape[0], -1)
@@ -54,9 +61,9 @@ def relative_error(value: torch.Tensor, reference: torch.Tensor, floor: float) -
     return float(((value - reference).abs().amax(dim=1) / scale).max())
 
 
-def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Strains from 1e-4 (far below the strength) to 0.3 (far beyond), partly damaged states, Weibull-like
-    strengths, every material of MATERIALS."""
+def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Strains from 1e-4 (far below the strength) to 0.3 (far beyond), partly damaged states with
+    Weibull-like strengths (the (N, 5) state block), every material of MATERIALS."""
     generator = torch.Generator().manual_seed(seed + 7)
     F = torch.cat([deformations(n // 4, seed, 1e-4), deformations(n // 4, seed + 1, 0.006),
                    deformations(n // 4, seed + 2, 0.02, 0.005), deformations(n - 3 * (n // 4), seed + 3, 0.3)])
@@ -68,7 +75,7 @@ def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     alpha = torch.where(brittle, damage, torch.full((n,), -0.01))
     strength = torch.where(brittle, torch.tensor([2.0e4, 0, 0, 1.0e3])[material_id.long()]
                            * (0.6 + 0.8 * torch.rand(n, generator=generator)), torch.ones(n))
-    return F, alpha, material_id, strength
+    return F, state_block(alpha, strength), material_id
 
 
 # ----------------------------------------------------------------------------- kernels vs twin
@@ -76,11 +83,13 @@ def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Te
 @needs_compiled
 @pytest.mark.parametrize("device", KERNEL_DEVICES)
 def test_compiled_brittle_update_matches_the_twin(device: str) -> None:
-    F, alpha, material_id, strength = mixed_batch(4000, seed=3)
+    F, state, material_id = mixed_batch(4000, seed=3)
+    alpha = state[:, 0]
     rows = table()
-    out = compiled.constitutive_update(*(t.to(device) for t in (F, alpha, rows, material_id, strength)))
-    F_E, damage, tau = (t.cpu() for t in out)
-    F_ref, damage_ref, tau_ref = mat.constitutive_update_reference(rows, material_id, F.double(), alpha, strength)
+    out = compiled.constitutive_update(*(t.to(device) for t in (F, state, rows, material_id)))
+    F_E, damage, tau = (t.cpu() for t in (out[0], out[1][:, 0], out[2]))
+    F_ref, state_ref, tau_ref, _ = mat.constitutive_update_reference(rows, material_id, F.double(), state)
+    damage_ref = state_ref[:, 0]
     brittle = (material_id == 0) | (material_id == 3)
     assert torch.equal(F_E[brittle], F[brittle])  # no plasticity: F_E = F_trial, bit for bit
     # Damage is a function of the driving stress; where that is within float error of the strength
@@ -108,9 +117,10 @@ def test_series_eigen_and_svd_paths_give_one_law() -> None:
     R1 = random_rotations(n, generator)
     F = ((R1 * torch.exp(stretch).unsqueeze(-2)) @ R1.mT).float()
     ids = torch.zeros(n, dtype=torch.int32)
-    alpha = torch.zeros(n)
-    F_E, damage, tau = compiled.constitutive_update(F, alpha, table(), ids)
-    F_ref, damage_ref, tau_ref = mat.constitutive_update_reference(table(), ids, F.double(), alpha)
+    state = state_block(torch.zeros(n), GLASS.strength)
+    F_E, state_new, tau, _ = compiled.constitutive_update(F, state, table(), ids)
+    F_ref, state_ref, tau_ref, _ = mat.constitutive_update_reference(table(), ids, F.double(), state)
+    damage, damage_ref = state_new[:, 0], state_ref[:, 0]
     assert int((damage_ref > 0).sum()) > 500 and int((damage_ref == 0).sum()) > 500
     assert float((damage.double() - damage_ref).abs().max()) < 1e-3
     assert relative_error(tau, tau_ref, 1e-6 * GLASS.bulk) < 1e-4
@@ -122,8 +132,8 @@ def test_energy_is_degraded_on_the_tensile_part_only(backend: str) -> None:
     compressive principal strains (and a compressive volume change) keep their energy."""
     F = torch.cat([deformations(200, 1, 0.01, +0.01), deformations(200, 2, 0.01, -0.01)])
     ids = torch.zeros(len(F), dtype=torch.int32)
-    psi_intact = mat.elastic_energy(F, table(), ids, backend=backend, alpha=torch.zeros(len(F)))
-    psi_broken = mat.elastic_energy(F, table(), ids, backend=backend, alpha=torch.ones(len(F)))
+    psi_intact = mat.elastic_energy(F, table(), ids, backend=backend, state=torch.zeros(len(F)))
+    psi_broken = mat.elastic_energy(F, table(), ids, backend=backend, state=torch.ones(len(F)))
     assert torch.allclose(psi_intact.double(), GLASS.energy_density(F.double()), rtol=1e-4)
     strain = torch.log(torch.linalg.svdvals(F.double()))
     e = strain.sum(1)
@@ -133,7 +143,7 @@ def test_energy_is_degraded_on_the_tensile_part_only(backend: str) -> None:
     assert torch.allclose(psi_broken.double(), GLASS.residual * tensile + compressive, rtol=1e-3, atol=1e-6)
     half = torch.full((len(F),), 0.3)
     g = 0.7 ** 2 * (1 - GLASS.residual) + GLASS.residual
-    assert torch.allclose(mat.elastic_energy(F, table(), ids, backend=backend, alpha=half).double(),
+    assert torch.allclose(mat.elastic_energy(F, table(), ids, backend=backend, state=half).double(),
                           g * tensile + compressive, rtol=1e-3, atol=1e-6)
 
 
@@ -143,14 +153,13 @@ def run_path(backend: str, path: torch.Tensor, material_index: int = 0, strength
              ) -> tuple[torch.Tensor, torch.Tensor]:
     """d after each step of a deformation path (steps, 3, 3) at one material point, and the
     undegraded largest principal Cauchy stress of each step."""
-    damage = torch.zeros(1)
+    state = state_block(torch.zeros(1), MATERIALS[material_index].strength if strength is None else strength)
     ids = torch.full((1,), material_index, dtype=torch.int32)
-    s = None if strength is None else torch.tensor([strength])
     rows = table()
     history = []
     for F in path.float():
-        _, damage, _ = mat.constitutive_update(F[None], damage, rows, ids, backend=backend, strength=s)
-        history.append(float(damage))
+        _, state, _, _ = mat.constitutive_update(F[None], state, rows, ids, backend=backend)
+        history.append(float(state[0, 0]))
     tau = MATERIALS[material_index].kirchhoff_stress(path.double())
     driving = torch.linalg.eigvalsh(tau).amax(-1) / torch.linalg.det(path.double())
     return torch.tensor(history, dtype=torch.float64), driving
@@ -168,12 +177,12 @@ def test_no_damage_in_hydrostatic_compression_rotation_or_rest(backend: str) -> 
     rotation = eye + torch.sin(angle)[:, None, None] * K + (1 - torch.cos(angle))[:, None, None] * (K @ K)
     rest = eye.expand(steps, 3, 3)
     paths = torch.stack([compression, rotation, rest], dim=1).float()  # (steps, 3 particles, 3, 3)
-    damage = torch.zeros(3)
+    state = state_block(torch.zeros(3), GLASS.strength)
     ids = torch.zeros(3, dtype=torch.int32)
     rows = table()
     for F in paths:
-        _, damage, _ = mat.constitutive_update(F, damage, rows, ids, backend=backend)
-        assert float(damage.abs().max()) == 0.0
+        _, state, _, _ = mat.constitutive_update(F, state, rows, ids, backend=backend)
+        assert float(state[:, 0].abs().max()) == 0.0
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -203,7 +212,7 @@ def taken_on_path(backend: str, material_index: int, axial: torch.Tensor, streng
     path = torch.diag_embed(torch.exp(torch.stack([axial, -material.nu * axial, -material.nu * axial], 1)))
     damage, _ = run_path(backend, path, material_index, strength=strength)
     rows = table()[material_index:material_index + 1].double()
-    tensile = material.tensile_energy_rows(path.double(), rows.expand(len(axial), -1))
+    tensile = tensile_energy_reference(path.double(), rows[:, 1], rows[:, 2])
     g = degradation(damage, material.residual)
     g_before = torch.cat([torch.ones(1, dtype=torch.float64), g[:-1]])
     return damage, torch.cumsum((g_before - g) * tensile, 0)

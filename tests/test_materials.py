@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -23,6 +24,14 @@ MATERIALS = [
     NACCMaterial(E=5.0e5, nu=0.46, density=5.0, alpha0=0.05, beta=0.0, xi=1.0, M=1.2),
     NACCMaterial(E=2.0e6, nu=0.2, density=3.0, alpha0=-0.4, beta=1.0, xi=2.0, M=2.0),
 ]
+
+
+NACC_COLUMNS = mat.model_columns(NACCMaterial)
+
+
+def initial_alpha(material: mat.Material) -> float:
+    """State field 0 a particle of ``material`` starts with."""
+    return float(material.initial_state(np.zeros(1, dtype=np.int64), np.ones(1), 0)[0, 0])
 
 
 def random_rotations(n: int, generator: torch.Generator) -> torch.Tensor:
@@ -49,7 +58,7 @@ def mixed_batch(n: int, seed: int) -> tuple[torch.Tensor, torch.Tensor, torch.Te
     F = torch.cat([random_deformations(n // 3, seed, 0.003), random_deformations(n // 3, seed + 2, 0.03),
                    random_deformations(n - 2 * (n // 3), seed + 3, 0.3)])
     material_id = torch.randint(0, len(MATERIALS), (n,), generator=generator, dtype=torch.int32)
-    alpha0 = torch.tensor([m.alpha0 for m in MATERIALS], dtype=torch.float32)[material_id.long()]
+    alpha0 = torch.tensor([initial_alpha(m) for m in MATERIALS], dtype=torch.float32)[material_id.long()]
     alpha = alpha0 + 0.05 * torch.randn(n, generator=generator) * (material_id > 0)
     return F, alpha, material_id
 
@@ -67,7 +76,7 @@ def yield_function(strain: torch.Tensor, alpha: torch.Tensor, row: torch.Tensor)
 
     ``row`` is the material-table row (float32 parameters, used in float64 here).
     """
-    mu, K, beta, xi, M = (row[mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    mu, K, beta, xi, M = (row[NACC_COLUMNS[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
     e = strain.sum(-1)
     q = math.sqrt(1.5) * 2 * mu * (strain - e[:, None] / 3).norm(dim=-1)
     p0 = K * (1e-5 + torch.sinh(xi * (-alpha).clamp_min(0)))
@@ -152,7 +161,7 @@ def test_svd3_small_strains_and_tiny_singular_values() -> None:
     # compare the principal strains through the stress of an elastic material instead.
     material = ElasticMaterial(E=1e4, nu=0.3, density=1.0)
     F_small = cases[1].float()
-    _, _, tau = compiled.constitutive_update(F_small, torch.zeros(n), MaterialTable([material]).table(),
+    _, _, tau, _ = compiled.constitutive_update(F_small, torch.zeros(n), MaterialTable([material]).table(),
                                              torch.zeros(n, dtype=torch.int32))
     tau_ref = material.kirchhoff_stress(F_small.double())
     tau_error = (tau.double() - tau_ref).flatten(1).abs().amax(1) / tau_ref.flatten(1).abs().amax(1)
@@ -193,13 +202,13 @@ def compiled_on(device: str, op, *tensors: torch.Tensor) -> tuple[torch.Tensor, 
 def test_compiled_update_matches_float64_reference(device: str) -> None:
     F, alpha, material_id = mixed_batch(1500, seed=10)
     table = MaterialTable(MATERIALS).table(F.device)
-    F_E, alpha_new, tau = compiled_on(device, compiled.constitutive_update, F, alpha, table, material_id)
+    F_E, alpha_new, tau, _ = compiled_on(device, compiled.constitutive_update, F, alpha, table, material_id)
     if device != "cpu":  # the CPU kernel's result is the reference of the CUDA one
-        F_cpu, alpha_cpu, tau_cpu = compiled.constitutive_update(F, alpha, table, material_id)
+        F_cpu, alpha_cpu, tau_cpu, _ = compiled.constitutive_update(F, alpha, table, material_id)
         assert relative_error(F_E, F_cpu, 1.0) < 1e-5
         assert float((alpha_new - alpha_cpu).abs().max()) < 1e-6
         assert relative_error(tau, tau_cpu, 1e-6 * float(table[:, mat.COLUMN["bulk"]].max())) < 1e-5
-    F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(
+    F_ref, alpha_ref, tau_ref, _ = mat.constitutive_update_reference(
         table, material_id, F.double(), alpha.double())
     # float32 kernel (double inside) vs float64 twin: only output rounding separates them.
     assert relative_error(F_E, F_ref, 1.0) < 1e-5
@@ -209,7 +218,7 @@ def test_compiled_update_matches_float64_reference(device: str) -> None:
                  / torch.maximum(tau_ref.flatten(1).abs().amax(1), 1e-6 * bulk))
     assert float(tau_error.max()) < 1e-5
     # The batch exercises every branch of the return map.
-    parameters = (table[material_id.long(), mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    parameters = (table[material_id.long(), NACC_COLUMNS[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
     result = mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters)
     nacc = material_id > 0
     assert int((result.tip & nacc & (alpha_ref < alpha.double())).sum()) > 0     # compression tip
@@ -251,7 +260,7 @@ def test_unknown_model_gives_nan_and_bad_inputs_are_rejected() -> None:
     table = MaterialTable(MATERIALS[:2]).table()
     table[1, mat.COLUMN["model"]] = 7.0
     ids = torch.tensor([0, 1, 0, 1, 0, 1], dtype=torch.int32)
-    for F_E, alpha_new, tau in (compiled.constitutive_update(F, alpha, table, ids),
+    for F_E, alpha_new, tau, _ in (compiled.constitutive_update(F, alpha, table, ids),
                                 mat.constitutive_update_reference(table, ids, F, alpha)):
         unknown = ids == 1
         assert bool(F_E[unknown].isnan().all() and alpha_new[unknown].isnan().all()
@@ -271,9 +280,9 @@ def test_unknown_model_gives_nan_and_bad_inputs_are_rejected() -> None:
 def test_material_methods_match_table_reference() -> None:
     F = random_deformations(200, 40, 0.2).double()
     for index, material in enumerate(MATERIALS):
-        alpha = torch.full((200,), material.alpha0, dtype=torch.float64)
+        alpha = torch.full((200,), initial_alpha(material), dtype=torch.float64)
         ids = torch.full((200,), index, dtype=torch.int32)
-        F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(MATERIALS, ids, F, alpha)
+        F_ref, alpha_ref, tau_ref, _ = mat.constitutive_update_reference(MATERIALS, ids, F, alpha)
         F_E, alpha_new = material.return_map(F, alpha)
         # The table holds float32 parameters, the material float64 ones: agree to ~1e-7.
         assert torch.allclose(F_E, F_ref, rtol=1e-6, atol=1e-6)
@@ -292,7 +301,7 @@ def test_inside_yield_surface_is_unchanged(backend: str) -> None:
     F = random_deformations(300, 50, 0.002)
     alpha = torch.full((300,), strong.alpha0)
     ids = torch.zeros(300, dtype=torch.int32)
-    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, MaterialTable([strong]).table(), ids,
+    F_E, alpha_new, tau, _ = mat.constitutive_update(F, alpha, MaterialTable([strong]).table(), ids,
                                                   backend=backend)
     assert torch.equal(F_E, F) and torch.equal(alpha_new, alpha)
     assert torch.allclose(tau, strong.kirchhoff_stress(F.double()).float(), rtol=1e-4,
@@ -312,11 +321,11 @@ def test_small_strain_path_matches_float64_reference() -> None:
     n = len(F)
     generator = torch.Generator().manual_seed(22)
     ids = torch.randint(0, len(MATERIALS), (n,), generator=generator, dtype=torch.int32)
-    alpha = torch.tensor([m.alpha0 for m in MATERIALS], dtype=torch.float32)[ids.long()]
+    alpha = torch.tensor([initial_alpha(m) for m in MATERIALS], dtype=torch.float32)[ids.long()]
     table = MaterialTable(MATERIALS).table()
-    F_E, alpha_new, tau = compiled.constitutive_update(F, alpha, table, ids)
-    F_ref, alpha_ref, tau_ref = mat.constitutive_update_reference(table, ids, F.double(), alpha.double())
-    parameters = (table[ids.long(), mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+    F_E, alpha_new, tau, _ = compiled.constitutive_update(F, alpha, table, ids)
+    F_ref, alpha_ref, tau_ref, _ = mat.constitutive_update_reference(table, ids, F.double(), alpha.double())
+    parameters = (table[ids.long(), NACC_COLUMNS[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
     inside = ~mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters).projected | (ids == 0)
     assert int(inside.sum()) > n // 2
     assert torch.equal(F_E[inside], F[inside]) and torch.equal(alpha_new[inside], alpha[inside])
@@ -364,9 +373,9 @@ def test_projection_lands_on_yield_surface_and_keeps_volume() -> None:
         alpha = torch.full((n,), material.alpha0)
         ids = torch.zeros(n, dtype=torch.int32)
         table = MaterialTable([material]).table()
-        F_E, alpha_new, _ = compiled.constitutive_update(F, alpha, table, ids)
-        F_ref, alpha_ref, _ = mat.constitutive_update_reference(table, ids, F.double(), alpha.double())
-        parameters = (table[0, mat.COLUMN[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
+        F_E, alpha_new, _, _ = compiled.constitutive_update(F, alpha, table, ids)
+        F_ref, alpha_ref, _, _ = mat.constitutive_update_reference(table, ids, F.double(), alpha.double())
+        parameters = (table[0, NACC_COLUMNS[c]].double() for c in ("mu", "bulk", "beta", "xi", "M"))
         result = mat.nacc_return_map_strain(principal_strain(F), alpha.double(), *parameters)
         ellipse = result.projected & ~result.tip
         assert int(ellipse.sum()) > n // 10 and int((~result.projected).sum()) > n // 10
@@ -397,7 +406,7 @@ def test_alpha_grows_in_tension_and_falls_under_compression(backend: str) -> Non
                      0.999 * eye + shear])            # shear, little compression: p < p_centre
     alpha = torch.full((4,), soil.alpha0)
     ids = torch.zeros(4, dtype=torch.int32)
-    F_E, alpha_new, _ = mat.constitutive_update(F, alpha, table, ids, backend=backend)
+    F_E, alpha_new, _, _ = mat.constitutive_update(F, alpha, table, ids, backend=backend)
     K, beta = soil.bulk, soil.beta
     p0 = K * (1e-5 + math.sinh(soil.xi * 0.1))
     # Tension tip: F_E isotropic with e' = beta p0 / K, alpha += e - e'.
@@ -422,7 +431,7 @@ def test_cohesionless_material_fails_in_tension(backend: str) -> None:
     """alpha >= 0 leaves p0 at its floor 1e-5 K: tiny tension sends F to the tension tip."""
     sand = NACCMaterial(E=1e5, nu=0.3, density=1.0, alpha0=0.0, beta=0.5, xi=2.0, M=1.0)
     F = (1.001 * torch.eye(3)).expand(1, 3, 3).contiguous()
-    F_E, alpha_new, tau = mat.constitutive_update(F, torch.zeros(1), MaterialTable([sand]).table(),
+    F_E, alpha_new, tau, _ = mat.constitutive_update(F, torch.zeros(1), MaterialTable([sand]).table(),
                                                   torch.zeros(1, dtype=torch.int32), backend=backend)
     e_tip = 0.5 * 1e-5
     assert alpha_new.item() == pytest.approx(3 * math.log(1.001) - e_tip, rel=1e-4)
@@ -454,7 +463,7 @@ def test_confined_shear_reaches_the_fracture_flag(backend: str) -> None:
     pressures = []
     for step in range(750):   # shear strain up to 0.15
         F_trial = (shear_step @ F.double()).to(dtype).contiguous()
-        F, alpha, tau = mat.constitutive_update(F_trial, alpha, table, ids, backend=backend)
+        F, alpha, tau, _ = mat.constitutive_update(F_trial, alpha, table, ids, backend=backend)
         pressures.append(-float(tau[0].trace()) / 3 / soil.bulk)
         if float(alpha) >= threshold:
             break
@@ -469,7 +478,7 @@ def test_elastic_model_never_changes_F_or_alpha(backend: str) -> None:
     F = torch.cat([random_deformations(200, 70, 0.6), -torch.eye(3).expand(1, 3, 3)])
     alpha = torch.randn(201, generator=torch.Generator().manual_seed(1))
     ids = torch.zeros(201, dtype=torch.int32)
-    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, MaterialTable(MATERIALS[:1]).table(), ids,
+    F_E, alpha_new, tau, _ = mat.constitutive_update(F, alpha, MaterialTable(MATERIALS[:1]).table(), ids,
                                                   backend=backend)
     assert torch.equal(F_E, F) and torch.equal(alpha_new, alpha)
     assert bool(torch.isfinite(tau).all())
@@ -500,7 +509,7 @@ def test_kirchhoff_stress_is_energy_derivative(backend: str) -> None:
         tolerance = 1e-6 * material.bulk
         assert float((material.kirchhoff_stress(F) - tau_fd).abs().max()) < tolerance
         ids = torch.full((len(F),), index, dtype=torch.int32)
-        _, _, tau = mat.constitutive_update(F.float(), torch.zeros(len(F)),
+        _, _, tau, _ = mat.constitutive_update(F.float(), torch.zeros(len(F)),
                                             MaterialTable(materials).table(), ids, backend=backend)
         assert float((tau.double() - tau_fd).abs().max()) < 1e-5 * material.bulk
 
@@ -539,7 +548,8 @@ def test_material_table_layout() -> None:
     assert math.isinf(tensor[0, 7].item())  # elastic particles are never flagged as fractured
     assert table.max_wave_speed == pytest.approx(max(m.wave_speed for m in MATERIALS))
     ids = torch.tensor([0, 2, 4], dtype=torch.int32)
-    assert torch.allclose(table.initial_alpha(ids), torch.tensor([0.0, -0.06, -0.4]))
+    assert torch.allclose(table.initial_state(ids, torch.ones(len(ids)), seed=0)[:, 0],
+                          torch.tensor([0.0, -0.06, -0.4]))
     with pytest.raises(ValueError, match="empty"):
         MaterialTable([])
 
@@ -572,7 +582,7 @@ def test_non_finite_input_gives_nan_output(backend):
     alpha = torch.full((6,), -0.02)
     alpha[2] = alpha[5] = float("nan")
     material_id = torch.tensor([0, 0, 0, 1, 1, 1], dtype=torch.int32)
-    F_E, alpha_new, tau = mat.constitutive_update(F, alpha, table, material_id, backend=backend)
+    F_E, alpha_new, tau, _ = mat.constitutive_update(F, alpha, table, material_id, backend=backend)
     assert bool(torch.isnan(F_E).flatten(1).all(1).all())
     assert bool(torch.isnan(tau).flatten(1).all(1).all())
     assert bool(torch.isnan(alpha_new).all())

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.mpm import ops, reference
-from fragment_scenes import block_drop, colliding_spheres, precracked_bar
+from fracture_gs.testing.fragment_scenes import block_drop, colliding_spheres, precracked_bar
 from fracture_gs.mpm.fragments import (count_fragments, fragment_ids, fragment_sizes, fragments_per_object,
                                       link_radius, object_link_radii, piece_ranks)
 from fracture_gs.mpm.grid import FragmentFields, GridFields, GridGeometry, ParticleBins
@@ -186,7 +186,8 @@ def test_fragment_kernels_match_reference(seed, device):
 
 @pytest.mark.parametrize("device", KERNEL_DEVICES)
 def test_crack_normals_make_references_and_cut_along_their_plane(device):
-    """A few isolated cracked particles (brittle, complete damage) carry crack normals: the compiled
+    """A few isolated cracked particles (brittle, complete damage) carry crack normals as their split
+    directions (3 columns of the brittle state block, as the solver passes them): the compiled
     reference pass gives the twin's vectors and keys, every node their stencils reach is split, and
     the particles around a lone crack are parted by the side of its plane."""
     geometry, p = cracked_particles(3, n_grids=1)
@@ -196,9 +197,10 @@ def test_crack_normals_make_references_and_cut_along_their_plane(device):
     cracked = torch.zeros(n, dtype=torch.bool)
     cracked[torch.randperm(n, generator=gen)[:6]] = True
     p["damaged"] = cracked.contiguous()
-    normals = torch.zeros(n, 3)
+    block = torch.zeros(n, 5)   # damage, strength, normal
     directions = torch.randn(6, 3, generator=gen)
-    normals[cracked] = directions / directions.norm(dim=1, keepdim=True)
+    block[cracked, 2:] = directions / directions.norm(dim=1, keepdim=True)
+    normals = block[:, 2:]
     scale = 4.0 / geometry.dx
     split_gradient = 0.25 / geometry.dx
     fields_geo = field_geometry(geometry)
@@ -210,8 +212,8 @@ def test_crack_normals_make_references_and_cut_along_their_plane(device):
     on = cast(fields, torch.float32, torch.device(device))
     bins_on = type(bins)(*(getattr(bins, f).to(device) for f in bins.__dataclass_fields__))
     gradient = ops.fragment_reference(bins_on, p["x"].to(device), p["grid_id"].to(device), geometry, 1e-12,
-                                      split_gradient, on, backend="cpp", crack_normal=normals.to(device),
-                                      crack_scale=scale).cpu()
+                                      split_gradient, on, backend="cpp", split_direction=block.to(device)[:, 2:],
+                                      direction_scale=scale).cpu()
     twin_gradient = reference.fragment_reference(p["x"], p["grid_id"], geometry, 1e-12, split_gradient, twin_fields,
                                                  normals, scale)
     assert torch.equal(gradient[cracked], scale * normals[cracked])
@@ -312,7 +314,7 @@ def test_fragment_field_blocks_match_twin():
 
 STATE_HASH_SCRIPT = textwrap.dedent("""
     import hashlib, sys
-    from fragment_scenes import precracked_bar
+    from fracture_gs.testing.fragment_scenes import precracked_bar
     solver, _ = precracked_bar(grid=32, length=0.3, width=0.1, backend="cpp")
     split = 0
     for _ in range(30):
@@ -371,17 +373,18 @@ def test_damage_follows_the_nacc_state_not_the_latched_fracture_flag():
     half_now = half.long()[solver.input_index]  # half of each particle in the solver's order
     slab, strong = torch.nonzero(half_now == 0).flatten(), torch.nonzero(half_now != 0).flatten()
     assert bool(solver.damaged()[slab].all()) and not bool(solver.damaged()[strong].any())  # α0 0.5 / −5
-    alpha = solver.state.alpha.clone()
-    alpha[strong[0]], alpha[strong[1]] = 0.999 * dilation, 1.001 * dilation  # lost cohesion, opened: only [1]
-    alpha[slab[0]] = -0.1                                                     # compacted again
-    solver.state = dataclasses.replace(solver.state, alpha=alpha)
+    state = solver.state.material_state.clone()
+    state[strong[0], 0], state[strong[1], 0] = 0.999 * dilation, 1.001 * dilation  # lost cohesion, opened: only [1]
+    state[slab[0], 0] = -0.1                                                       # compacted again
+    solver.state = dataclasses.replace(solver.state, material_state=state)
     damaged = solver.damaged()
     assert not bool(damaged[strong[0]]) and bool(damaged[strong[1]])
     assert not bool(damaged[slab[0]]) and bool(solver.state.fractured[slab[0]])  # the flag stays latched
     assert int(damaged.sum()) == int((half == 0).sum())                         # −1 slab, +1 strong
 
     elastic = block_drop(6.0, E=1e4, density=100.0, alpha0=None, grid=16, backend="reference")
-    elastic.state = dataclasses.replace(elastic.state, alpha=torch.full_like(elastic.state.alpha, 10.0))
+    elastic.state = dataclasses.replace(elastic.state,
+                                        material_state=torch.full_like(elastic.state.material_state, 10.0))
     assert not bool(elastic.damaged().any())
     for bad in (-0.01, math.inf, math.nan):
         with pytest.raises(ValueError, match="damage_dilation"):

@@ -348,14 +348,13 @@ def material_table() -> torch.Tensor:
     return MaterialTable(materials).table(torch.device("cpu"))
 
 
-def g2p_on(device: str, p: dict, F_E, alpha, fractured, material_id, table, fields: GridFields,
-           geometry: GridGeometry, dt: float, strength: torch.Tensor | None = None):
+def g2p_on(device: str, p: dict, F_E, state, fractured, material_id, table, fields: GridFields,
+           geometry: GridGeometry, dt: float, with_dissipated: bool = False):
     """The compiled G2P on ``device``; tensors back on the CPU, the stats as they are, and with
-    ``strength`` the energy the brittle damage took (per unit rest volume) last."""
-    on = [t.to(device) for t in (p["x"], F_E, alpha, fractured, p["grid_id"], material_id, table)]
-    dissipated = torch.full((len(p["x"]),), float("nan"), device=device) if strength is not None else None
-    out = ops.g2p(*on, moved(fields, device), geometry, dt, backend="cpp",
-                  strength=strength.to(device) if strength is not None else None, dissipated=dissipated)
+    ``with_dissipated`` the energy the updates took (per unit rest volume) last."""
+    on = [t.to(device) for t in (p["x"], F_E, state, fractured, p["grid_id"], material_id, table)]
+    dissipated = torch.full((len(p["x"]),), float("nan"), device=device) if with_dissipated else None
+    out = ops.g2p(*on, moved(fields, device), geometry, dt, backend="cpp", dissipated=dissipated)
     return [t.cpu() for t in out[:7]] + [out[7]] + ([dissipated.cpu()] if dissipated is not None else [])
 
 
@@ -405,13 +404,16 @@ def test_g2p_with_brittle_particles_matches_reference(device):
     alpha = torch.where(brittle, torch.where(torch.rand(n, generator=gen) < 0.7, 0.0, torch.rand(n, generator=gen)),
                         torch.full((n,), -0.01))
     strength = torch.from_numpy(glass.strengths(np.arange(n), np.full(n, 1e-6), seed=3).astype(np.float32))
+    state = torch.cat([alpha[:, None], strength[:, None], torch.zeros(n, 3)], 1)   # damage, strength, normal
     fractured = alpha >= 0.5
     dt = 2e-4
-    out = g2p_on(device, p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
+    out = g2p_on(device, p, F_E, state, fractured, material_id, table, fields, geometry, dt, with_dissipated=True)
+    out[4] = out[4][:, 0]
     twin_dissipated = torch.empty(n, dtype=torch.float64)
-    twin = reference.g2p(double(p["x"]), double(F_E), double(alpha), fractured, p["grid_id"], material_id,
-                         table.double(), fields.velocity.double(), geometry, dt, *geometry.clamp_bounds(),
-                         strength=strength, dissipated=twin_dissipated)
+    twin = list(reference.g2p(double(p["x"]), double(F_E), double(state), fractured, p["grid_id"], material_id,
+                              table.double(), fields.velocity.double(), geometry, dt, *geometry.clamp_bounds(),
+                              dissipated=twin_dissipated))
+    twin[4] = twin[4][:, 0]
     for name, a, b in zip(["x", "v", "C", "F_E", "stress"], [out[i] for i in (0, 1, 2, 3, 5)],
                           [twin[i] for i in (0, 1, 2, 3, 5)]):
         assert rel_err(a, b) < REL_TOL, name
@@ -425,8 +427,8 @@ def test_g2p_with_brittle_particles_matches_reference(device):
     assert float(twin_dissipated.sum()) > 0 and float(dissipated.min()) >= 0
     assert float(dissipated.sum()) == pytest.approx(float(twin_dissipated.sum()), rel=2e-3)
     if device != "cpu":
-        cpu = g2p_on("cpu", p, F_E, alpha, fractured, material_id, table, fields, geometry, dt, strength)
-        assert rel_err(out[5], cpu[5]) < REL_TOL and float((out[4] - cpu[4]).abs().max()) < 2e-3
+        cpu = g2p_on("cpu", p, F_E, state, fractured, material_id, table, fields, geometry, dt, with_dissipated=True)
+        assert rel_err(out[5], cpu[5]) < REL_TOL and float((out[4] - cpu[4][:, 0]).abs().max()) < 2e-3
 
 
 def test_g2p_reports_the_first_non_finite_particle():

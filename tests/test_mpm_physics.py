@@ -16,7 +16,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from fracture_gs.config.scene import parse_scene
-from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.solver import CollisionMPM

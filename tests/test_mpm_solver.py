@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
-from fragment_scenes import block_drop
+from fracture_gs.testing.fragment_scenes import block_drop
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary, SimulationBlowUp
 from thread_counts import last_lines_per_thread_count

@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
+from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM

@@ -83,7 +83,7 @@ class BallisticSolver:
         eye = torch.eye(3, device=device).expand(n, 3, 3).clone()
         self.state = SimState(x=self.particles.x.clone(), v=self.particles.v.clone(),
                               C=torch.zeros(n, 3, 3, device=device), F_E=eye,
-                              alpha=torch.zeros(n, device=device),
+                              material_state=torch.zeros(n, 1, device=device),
                               fractured=torch.zeros(n, dtype=torch.bool, device=device))
 
     def advance(self, frame_dt: float) -> StepStats:
@@ -102,7 +102,7 @@ class BallisticSolver:
             if not torch.isfinite(x).all():
                 raise SimulationBlowUp("non-finite position")
             t, left, steps, dt_min = t + dt, left - dt, steps + 1, min(dt_min, dt)
-        self.state = SimState(x=x, v=v, C=s.C, F_E=s.F_E, alpha=s.alpha,
+        self.state = SimState(x=x, v=v, C=s.C, F_E=s.F_E, material_state=s.material_state,
                               fractured=s.fractured | (x[:, 2] < 0.3), time=t,
                               step=s.step + steps)
         return StepStats(steps=steps, dt_min=dt_min, clamped=clamped)
@@ -134,17 +134,17 @@ class BallisticSolver:
     def state_in_input_order(self) -> SimState:
         return self.state  # never reorders its particles
 
-    def damage_in_input_order(self) -> torch.Tensor:
-        return torch.zeros_like(self.state.alpha)  # no brittle material
+    def frame_fields_in_input_order(self) -> dict[str, torch.Tensor]:
+        return {"damage": torch.zeros_like(self.state.alpha)}  # no brittle material
 
     def state_dict(self) -> dict[str, Any]:
         s = self.state
         return {"x": s.x.clone(), "v": s.v.clone(), "C": s.C.clone(), "F_E": s.F_E.clone(),
-                "alpha": s.alpha.clone(), "fractured": s.fractured.clone(), "time": s.time,
+                "material_state": s.material_state.clone(), "fractured": s.fractured.clone(), "time": s.time,
                 "step": s.step}
 
     def load_state_dict(self, d: dict[str, Any]) -> None:
-        arrays = {k: torch.as_tensor(d[k]) for k in ("x", "v", "C", "F_E", "alpha", "fractured")}
+        arrays = {k: torch.as_tensor(d[k]) for k in ("x", "v", "C", "F_E", "material_state", "fractured")}
         self.state = SimState(**arrays, time=float(d["time"]), step=int(d["step"]))
 
 
@@ -218,7 +218,7 @@ def test_output_folder_layout(tmp_path: Path, ballistic: None,
                       "elastic", "gravitational", "total_energy", "fractured",
                       "left_px", "left_py", "left_pz", "left_kinetic",
                       "right_px", "right_py", "right_pz", "right_kinetic", "fragments",
-                      "impulse_x", "impulse_y", "impulse_z", "fracture_energy"]
+                      "impulse_x", "impulse_y", "impulse_z", "dissipated_energy"]
     table = read_diagnostics_csv(out / "diagnostics.csv")
     assert table["frame"].tolist() == [0, 1, 2, 3, 4]
     assert np.allclose(table["time"], 0.01 * np.arange(5))

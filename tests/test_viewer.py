@@ -25,7 +25,7 @@ from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.sh import SH_C0
 from fracture_gs.folders.sim_reader import Simulation
 from fracture_gs.viewer.app import PortInUseError, Viewer, ViewerOptions, check_port_free
-from headless_browser import WebsocketProbe, wait_for
+from fracture_gs.testing.headless_browser import WebsocketProbe, wait_for
 from fracture_gs.viewer.cache import FrameCache
 from fracture_gs.viewer.sources import ModelSource, SimulationSource
 from fracture_gs.viewer.splats import (DAMAGE_PALETTE, HIGHLIGHT_RGB, PIECE_PALETTE, SMALL_PIECE_RGB, ObjectSplats,

@@ -16,7 +16,7 @@ import torch
 from fracture_gs.config.scene import read_yaml
 from fracture_gs.render.frame_gaussians import FLAT_PALETTE
 from fracture_gs.viewer.app import Viewer, ViewerOptions
-from headless_browser import HeadlessBrowser, colour_coverage, find_chromium, wait_for
+from fracture_gs.testing.headless_browser import HeadlessBrowser, colour_coverage, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
 from render_scenes import simulate_quietly
 

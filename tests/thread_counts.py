@@ -11,8 +11,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def last_lines_per_thread_count(script: str, threads: tuple[str, ...] = ("1", "2", "3")) -> list[str]:
     """The last stdout line of ``python -c script`` run from the repository root with each
-    ``OMP_NUM_THREADS`` in ``threads`` (in that order); the script can import the tests' scene
-    builders (``lattice``, ``fragment_scenes``)."""
+    ``OMP_NUM_THREADS`` in ``threads`` (in that order); the script can import the test modules
+    (``tests/`` is on its path) and the shared scenes of :mod:`fracture_gs.testing`."""
     lines = []
     path = os.pathsep.join(filter(None, [str(ROOT / "tests"), os.environ.get("PYTHONPATH")]))
     for count in threads:

@@ -2,10 +2,11 @@
 // written so that GCC vectorises a loop over particles that calls it (the CPU kernels run
 // it 8 or 16 particles per instruction; see csrc/mpm/constitutive_batch.h).
 //
-// Every model here is isotropic, so the stress and the return map only need the eigen-
-// decomposition of the left Cauchy-Green tensor b = F F^T = Q diag(s) Q^T, s_i = sigma_i^2:
+// Every model is isotropic, so the stress and the return map only need the eigen-decomposition of
+// the left Cauchy-Green tensor b = F F^T = Q diag(s) Q^T, s_i = sigma_i^2, and the model's law
+// (csrc/common/material_registry.h) only the strain invariants:
 //   Hencky strain   eps_i = ln sigma_i = 1/2 log1p(|Q_i^T F|^2 - 1),  Q = eigenvectors of b - I
-//   Kirchhoff       tau = Q diag(2 mu eps + lambda_L tr eps) Q^T
+//   Kirchhoff       tau = Q diag(tau_i) Q^T, tau_i the law's principal stresses
 //   return map      F_E = U diag(e^eps') V^T = Q diag(e^(eps' - eps)) Q^T F
 // (V^T = diag(sigma)^-1 U^T F and U = Q up to column signs, which cancel). b - I is formed in
 // double from the float F (exact products), so its eigenvalues carry the strain to float
@@ -107,109 +108,29 @@ HOST_DEVICE FGS_FORCE_INLINE double cauchy_green_minus_identity(const float F[9]
          Fd[2] * (Fd[3] * Fd[7] - Fd[4] * Fd[6]);
 }
 
-// Material parameters of one table row (see MatField) and the particle's tensile strength.
-// c4..c6 are the model's own parameters: NACC beta, xi, M; brittle median strength, crack band
-// constant, residual.
-struct MaterialRow {
-  float model, mu, lambda, bulk, c4, c5, c6, strength;
-};
-
-// The NACC return map (docs/formulas.md) on the strain invariants, in double: what both update paths
-// below need. e: volumetric Hencky strain ln det F; dev_norm: |dev eps|; alpha: the old alpha.
-struct InvariantReturn {
-  double g;          // new dev eps = g dev eps: 1 inside (and for the elastic and brittle models),
-                     // the radial scale on the ellipse (volume kept), 0 at the tips
-  double e_out;      // new volumetric strain
-  double alpha;      // new alpha (brittle: new damage d)
-  double shear;      // tau = 2 mu shear dev eps + K volume I: shear = g and volume = e_out (NACC,
-  double volume;     // elastic; brittle: g(d) and e, exact for undamaged particles only - damaged ones
-                     // need the principal strains, brittle_principal_stress)
-  double driving;    // brittle: undegraded largest principal Cauchy stress (0 for other models)
-  double q;          // sqrt(3/2) 2 mu |dev eps| of the trial state
-  double y;          // yield function of the trial state
-  double y_tol;      // the state is projected where y > y_tol (nacc_yield_tolerance)
-  float projected;   // 1 if the state was projected (a float: GCC 12 cannot vectorise a select on a bool)
-  float tip;         // 1 if projected to a tip
-};
-
-HOST_DEVICE FGS_FORCE_INLINE InvariantReturn nacc_invariant_return(const MaterialRow& m, float alpha, double e,
-                                                         double dev_norm) {
-  const bool is_nacc = m.model == (float)kModelNacc;
-  const double mu = m.mu, K = m.bulk, beta = m.c4, M = m.c6;
-  const double a = alpha;
-  const double p0 = K * (kNaccP0Floor + fast_math::sinh_nonnegative_d(m.c5 * fast_math::max_of(-a, 0.0)));
-  const double p = -K * e;
-  const double q = 1.2247448713915890491 * 2.0 * mu * dev_norm;  // sqrt(3/2) 2 mu |dev|
-  const bool compression_tip = p > p0;
-  const bool tension_tip = !compression_tip & (p < -beta * p0);
-  const bool tip = is_nacc & (compression_tip | tension_tip);
-  const double y = (1.0 + 2.0 * beta) * q * q + M * M * (p + beta * p0) * (p - p0);
-  const double y_tol = nacc_yield_tolerance(p0, M);
-  const bool ellipse = is_nacc & !tip & (y > y_tol);
-  const double e_tip = compression_tip ? -p0 / K : beta * p0 / K;
-  const double q_new = M * sqrt(fast_math::max_of((p + beta * p0) * (p0 - p) / (1.0 + 2.0 * beta), 0.0));
-  const double scale = q > 0.0 ? q_new / (q > 0.0 ? q : 1.0) : 0.0;
-  // CD-MPM hardening: alpha moves as if p went to the ellipse along the ray from its centre.
-  const double pc = 0.5 * (1.0 - beta) * p0;
-  const double half_axis = 0.5 * (1.0 + beta) * p0;
-  const double ray = sqrt((1.0 + 2.0 * beta) * q * q + M * M * (p - pc) * (p - pc));
-  const double p_final = pc + M * half_axis / (ray > 0.0 ? ray : 1.0) * (p - pc);
-  const bool harden = ellipse & (-beta * p0 < p) & (p < p0) & (ray > 0.0);
-  InvariantReturn r;
-  r.alpha = tip ? a + (e - e_tip) : (harden ? a + (p_final - p) / K : a);
-  r.g = tip ? 0.0 : (ellipse ? scale : 1.0);
-  r.e_out = tip ? e_tip : e;
-  r.q = q;
-  r.y = y;
-  r.y_tol = y_tol;
-  r.projected = (tip | ellipse) ? 1.f : 0.f;
-  r.tip = tip ? 1.f : 0.f;
-  r.shear = r.g;
-  r.volume = r.e_out;
-  r.driving = 0.0;
-  return r;
-}
-
-// The update of any model on the strain invariants: NACC's return map (nacc_invariant_return) or the
-// brittle damage law (brittle_response). dev_max: the largest principal deviatoric strain (the
-// brittle driving stress needs it; an upper bound gives an upper bound of the driving stress).
-// det: det F (J).
-HOST_DEVICE FGS_FORCE_INLINE InvariantReturn invariant_update(const MaterialRow& m, float alpha, double e, double det,
-                                                              double dev_norm, double dev_max) {
-  InvariantReturn r = nacc_invariant_return(m, alpha, e, dev_norm);
-  const bool is_brittle = m.model == (float)kModelBrittle;
-  const BrittleResponse b = brittle_response(m.mu, m.bulk, m.strength, m.c5, m.c6, alpha, e,
-                                             1.0 / (det > 0.0 ? det : 1.0), dev_max);
-  r.alpha = is_brittle ? b.damage : r.alpha;
-  r.shear = is_brittle ? b.g : r.shear;
-  r.volume = is_brittle ? e : r.volume;
-  r.driving = is_brittle ? b.driving : 0.0;
-  return r;
-}
-
 // What the return map did to one particle, for projected_deformation: F_E = Q diag(exp(log_
 // stretch_i)) Q^T F / |Q_i|^2 where `projected` is non-zero, F itself elsewhere.
 struct EigProjection {
   double Q[9];             // eigenvectors of b (columns, orthogonal to float precision)
   double log_stretch[3];   // eps_out_i - eps_i
-  float projected;         // 1 if the state was projected onto the yield surface, else 0
+  float projected;         // 1 if the law changed F, else 0
 };
 
-// Constitutive update (elastic, NACC or brittle) through the eigen-decomposition of b, first
-// half: the return map's decisions, alpha and the Kirchhoff stress of F_E. F: F_trial; alpha
-// in/out; tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E.
+// The constitutive update through the eigen-decomposition of b, first half: the law's decisions,
+// the new state and the Kirchhoff stress of F_E. F: F_trial; state: in/out (kMaxStateFields floats);
+// tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E; dissipated: the
+// energy per unit rest volume the update took (the law's `dissipated`).
 // Returns false (outputs meaningless) where the caller must use constitutive_update instead:
 // see the file comment.
-// dissipated: the energy per unit rest volume the brittle damage took in this update (0 otherwise).
-HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, const float F[9], float* alpha,
-                                                float tau[9], EigProjection* proj, float* dissipated) {
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, const float F[9],
+                                                          float state[kMaxStateFields], float tau[9],
+                                                          EigProjection* proj, float* dissipated) {
   double Fd[9], b[6];
   const double det = cauchy_green_minus_identity(F, Fd, b);
   double Q[9];
   sym3_eigenvectors(b, Q);
 
-  const float a = *alpha;
-  float probe = a * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
+  float probe = state[0] * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
   // sigma_i^2 = |Q_i^T F|^2 / |Q_i|^2 in double. The rows of Q^T F are orthogonal, so an
@@ -229,15 +150,13 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
     stretch_sq[i] = row_norm2 / (q0 * q0 + q1 * q1 + q2 * q2);
   }
   const double stretch_sq_min = fast_math::min_of(fast_math::min_of(stretch_sq[0], stretch_sq[1]), stretch_sq[2]);
-  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc,
-             is_brittle = m.model == (float)kModelBrittle;
   // Bitwise & and | (no short circuit) on the conditions: branches would stop the vectoriser.
   const bool valid = (probe == 0.f) & (det > 0.0) & (stretch_sq_min > (double)kEigMinStretchSq) &
-                     (is_elastic | is_nacc | is_brittle);
+                     MaterialModels::known(m);
 
-  // From here on double (the loop stays vectorised, 4 lanes per instruction): in float the
-  // return map lands ~1e-5 K^2 off the yield surface for strains of order 1, where y is a
-  // small difference of large terms.
+  // From here on double (the loop stays vectorised, 4 lanes per instruction): in float a return
+  // map lands ~1e-5 K^2 off its yield surface for strains of order 1, where the yield function is
+  // a small difference of large terms.
   //
   // Principal Hencky strains eps_i, their trace e = ln det F (from det F itself: the sum of the
   // eps_i would lose the small volumetric strain of a large deviatoric one to cancellation, and
@@ -251,30 +170,21 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i) dev[i] = eps[i] - e * (1.0 / 3.0);
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
-
-  const double mu = m.mu, lambda = m.lambda;
   const double dev_max = fast_math::max_of(fast_math::max_of(dev[0], dev[1]), dev[2]);
-  const InvariantReturn ret = invariant_update(m, a, e, det, dev_norm, dev_max);
-  *alpha = (float)ret.alpha;
+  const StrainInvariants s{e, 1.0 / (det > 0.0 ? det : 1.0), dev_norm, dev_max, 0.0};
+  const LawResult ret = MaterialModels::update(m, state, s);
   proj->projected = ret.projected;
-  const double g = ret.g;
-  const double e_out = ret.e_out;
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) proj->Q[i] = Q[i];
 #pragma GCC unroll 9
-  for (int i = 0; i < 3; ++i) proj->log_stretch[i] = (g - 1.0) * dev[i] + (e_out - e) * (1.0 / 3.0);
-  // tau = Q diag(2 mu eps_out + lambda tr eps_out) Q^T = Q diag(2 mu g dev + K e_out) Q^T (NACC,
-  // elastic); the brittle model's principal stresses degrade the tensile principal strains.
-  const double bulk_term = (lambda + (2.0 / 3.0) * mu) * ret.volume;
+  for (int i = 0; i < 3; ++i) proj->log_stretch[i] = (ret.dev_scale - 1.0) * dev[i] + (ret.e_out - e) * (1.0 / 3.0);
+  // tau = Q diag(tau_i) Q^T with the law's principal stresses.
   double d[3];
 #pragma GCC unroll 9
-  for (int i = 0; i < 3; ++i) {
-    const double brittle = brittle_principal_stress(mu, lambda, ret.shear, dev[i] + e * (1.0 / 3.0), e);
-    d[i] = is_brittle ? brittle : 2.0 * mu * ret.shear * dev[i] + bulk_term;
-  }
-  const double principal_strain[3] = {dev[0] + e * (1.0 / 3.0), dev[1] + e * (1.0 / 3.0), dev[2] + e * (1.0 / 3.0)};
-  const double taken = (brittle_degradation(a, m.c6) - ret.shear) * brittle_tensile_energy(mu, lambda, principal_strain, e);
-  *dissipated = is_brittle ? (float)taken : 0.f;
+  for (int i = 0; i < 3; ++i) d[i] = MaterialModels::principal_stress(m, ret, dev[i], e);
+  *dissipated = (float)MaterialModels::dissipated(m, state, ret, dev, e);
+#pragma GCC unroll 9
+  for (int k = 0; k < kMaxStateFields; ++k) state[k] = ret.state[k];
 #pragma GCC unroll 9
   for (int i = 0; i < 3; ++i)
 #pragma GCC unroll 9
@@ -337,9 +247,8 @@ HOST_DEVICE FGS_FORCE_INLINE void projected_deformation(const EigProjection& pro
 // With |Y|_F <= kSmallStrainNorm = 0.25 (isochoric principal stretches in [0.77, 1.29], any volume
 // change) the atanh series to Y^11 is exact to |Y|^12 / 13, < 5e-9 relative, and with
 // |W|_F <= kSmallStrainNorm the exp series to W^6 to |W|^7 / 7! < 1.3e-8; both run in float (the
-// products are well scaled), the return map's algebra in double (nacc_invariant_return). States
-// within the float error of |dev eps| of the yield surface are left to the eigen path, so both
-// paths decide alike.
+// products are well scaled), the law's algebra in double. States within the float error of
+// |dev eps| of a law's threshold are left to the eigen path, so both paths decide alike.
 
 constexpr float kSmallStrainNorm = 0.25f;  // |Y|_F and |W|_F bound of the series path
 // det F must exceed this (e^-19) on the series path: then b's eigenvalues exceed
@@ -383,12 +292,14 @@ HOST_DEVICE FGS_FORCE_INLINE float sym3_norm_sq(const float X[6]) {
 }  // namespace hencky_eig_detail
 
 // The constitutive update at small to moderate deviatoric strain (the series path). F: F_trial in;
-// F_out: F_E; alpha in/out;
-// tau: Kirchhoff stress of F_E. Returns false (outputs meaningless) where the caller must run
-// the eigen path (constitutive_stress_eig) instead: isochoric strains beyond kSmallStrainNorm, a
-// state within float error of the yield surface, or anything the eigen path rejects.
-HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9], float* alpha,
-                                                  float F_out[9], float tau[9]) {
+// F_out: F_E; state in/out (kMaxStateFields floats); tau: Kirchhoff stress of F_E. Returns false
+// (outputs meaningless) where the caller must run the eigen path (constitutive_stress_eig)
+// instead: isochoric strains beyond kSmallStrainNorm, a state the law does not decide (within
+// float error of a threshold, a non-linear stress, dissipation), or anything the eigen path rejects.
+// Where it returns true the update dissipated nothing.
+HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9],
+                                                            float state[kMaxStateFields], float F_out[9],
+                                                            float tau[9]) {
   using hencky_eig_detail::sym3_norm_sq;
   using hencky_eig_detail::sym3_polynomial;
   using hencky_eig_detail::sym3_product;
@@ -402,8 +313,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   float X[6];
 #pragma GCC unroll 6
   for (int i = 0; i < 6; ++i) X[i] = (float)(s * b[i] + (i < 3 ? s - 1.0 : 0.0));
-  const float a = *alpha;
-  float probe = a * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
+  float probe = state[0] * 0.f;  // NaN/Inf anywhere in the input makes it non-zero
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) probe += F[i] * 0.f;
 
@@ -434,32 +344,20 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2] +
                                2.0 * (dev[3] * dev[3] + dev[4] * dev[4] + dev[5] * dev[5]));
 
-  const bool is_elastic = m.model == (float)kModelElastic, is_nacc = m.model == (float)kModelNacc,
-             is_brittle = m.model == (float)kModelBrittle;
-  // The largest eigenvalue of a traceless symmetric matrix is at most sqrt(2/3) of its norm: the
-  // brittle driving stress computed from that bound is an upper bound of the true one.
-  const InvariantReturn ret = invariant_update(m, a, e, det, dev_norm, 0.81649658092772603273 * dev_norm);
-  // The float error of |dev eps| (a few ulp of |eps_iso| <= 1.03 |Y|) moves y by at most dy:
-  // closer than that to the threshold, the decision is left to the eigen path.
-  const double mu = m.mu, beta = m.c4;
-  const double q = ret.q;
-  const double dq = 1.2247448713915890491 * 2.0 * mu * (2e-6 * (double)sqrtf(y_norm_sq) + 1e-12);
-  const double dy = (1.0 + 2.0 * beta) * dq * (2.0 * q + dq);
-  // decided > 0 where y is farther than dy from the threshold, or the state goes to a tip, or
-  // the model is elastic (a double, not a bool: GCC 12 cannot vectorise that mix of conditions).
-  // A brittle state is decided where it is undamaged and the bound of its driving stress stays below
-  // the particle's strength (no new damage, whatever the true largest principal stress: the stress is
-  // the undamaged one); damaged states need the principal strains of the eigen path (spectral split).
-  const double nacc_decided = fast_math::max_of(fast_math::abs_of(ret.y - ret.y_tol) - dy,
-                                                (double)(ret.tip + (is_elastic ? 1.f : 0.f)));
-  const bool brittle_decided = (ret.driving < (double)m.strength) & (a == 0.f);
-  const double decided = is_brittle ? (brittle_decided ? 1.0 : -1.0) : nacc_decided;
-  *alpha = (float)ret.alpha;
+  // The largest eigenvalue of a traceless symmetric matrix is at most sqrt(2/3) of its norm: a
+  // driving stress computed from that bound is an upper bound of the true one. The float error of
+  // |dev eps| is a few ulp of |eps_iso| <= 1.03 |Y|: a law leaves a state closer than that to one of
+  // its thresholds to the eigen path (LawResult::decided).
+  const StrainInvariants invariants{e, 1.0 / (det > 0.0 ? det : 1.0), dev_norm, 0.81649658092772603273 * dev_norm,
+                                    2e-6 * (double)sqrtf(y_norm_sq) + 1e-12};
+  const LawResult ret = MaterialModels::update(m, state, invariants);
+#pragma GCC unroll 9
+  for (int k = 0; k < kMaxStateFields; ++k) state[k] = ret.state[k];
 
   // exp(W) = I + W P, P = sum_k W^(k-1) / k! for k = 1..6, by Horner; W = (g - 1) dev eps.
   float W[6];
 #pragma GCC unroll 6
-  for (int i = 0; i < 6; ++i) W[i] = (float)((ret.g - 1.0) * dev[i]);
+  for (int i = 0; i < 6; ++i) W[i] = (float)((ret.dev_scale - 1.0) * dev[i]);
   const float w_norm_sq = sym3_norm_sq(W);
   const float exp_coefficients[6] = {1.f, 1.f / 2.f, 1.f / 6.f, 1.f / 24.f, 1.f / 120.f, 1.f / 720.f};
   float E[6];
@@ -479,6 +377,8 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
       F_out[3 * i + j] = (ret.projected > 0.f) ? projected_entry : F[3 * i + j];
     }
 
+  // The linear stress (a state the law decided has one: see LawResult::decided).
+  const double mu = m.mu;
   const double bulk_term = ((double)m.lambda + (2.0 / 3.0) * mu) * ret.volume;
   const double shear = 2.0 * mu * ret.shear;
   const float t00 = (float)(shear * dev[0] + bulk_term), t11 = (float)(shear * dev[1] + bulk_term),
@@ -489,7 +389,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   tau[6] = t02; tau[7] = t12; tau[8] = t22;
   return (probe == 0.f) & (y_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
          (w_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > kSmallStrainMinDet) &
-         (is_elastic | is_nacc | is_brittle) & (decided > 0.0);
+         MaterialModels::known(m) & (ret.decided > 0.0);
 }
 
 }  // namespace fgs

@@ -7,8 +7,9 @@
 //      the solver sets it where the current alpha is at least the material's fracture threshold
 //      plus contact.damage_dilation), so D_i = sum w m D / sum w m is the mass-weighted damage at
 //      node i (in [0, 1]).
-//   2. Every particle gathers its damage gradient grad D_p = sum_i D_i grad w_ip (a cracked brittle
-//      particle takes its scaled crack normal instead, apply_crack_normal), and every node keeps,
+//   2. Every particle gathers its damage gradient grad D_p = sum_i D_i grad w_ip (a particle whose
+//      material gave it a split direction takes that, scaled, instead: apply_split_direction), and
+//      every node keeps,
 //      among the particles whose stencil reaches it, the one with the largest |grad D_p| (its
 //      "reference"; ties broken by the particle index, so the choice is order-free: a max).
 //   3. A node is split where |grad D_ref| >= split_gradient (a crack passes by). There, particle p
@@ -48,18 +49,25 @@ struct FragmentView {
 // Bit of stencil node (a, b, c) in a side mask.
 HOST_DEVICE inline uint32_t side_bit(int a, int b, int c) { return 1u << (9 * a + 3 * b + c); }
 
-// A cracked particle (brittle, complete damage) carries the normal of its crack plane: its reference
-// vector is that normal times crack_scale (1/length, large enough that it splits every node its
+// Split directions: a particle's material may give it a unit vector (the brittle model: the normal
+// of its crack plane once its damage is complete, fracture_gs/materials/brittle.py). Its reference
+// vector is then that direction times `scale` (1/length, large enough that it splits every node its
 // stencil reaches and outranks the damage gradients there) instead of its damage gradient. At a node
-// whose reference is a cracked particle r, particle q is on side B where grad D_q . n_r < 0: the
-// damage gradient of q points toward the crack, so the test separates the two half-spaces of r's
-// crack plane from the first cracked particle on (a damage band needs many before its gradient
-// reaches split_gradient). crack_normal rows are 0 for particles without a crack; nullptr: none.
-HOST_DEVICE inline void apply_crack_normal(const float* crack_normal, float crack_scale, long long q, float gq[3]) {
-  if (crack_normal == nullptr) return;
-  const float* n = crack_normal + 3 * q;
+// whose reference is such a particle r, particle q is on side B where grad D_q . n_r < 0: the damage
+// gradient of q points toward the crack, so the test separates the two half-spaces of r's crack
+// plane from the first cracked particle on (a damage band needs many before its gradient reaches
+// split_gradient). Rows are 0 for particles without a direction.
+struct DirectionView {
+  const float* direction;  // particle q's direction at direction + stride * q (3 floats), or nullptr: none
+  long long stride;        // floats from one particle's row to the next
+  float scale;
+};
+
+HOST_DEVICE inline void apply_split_direction(const DirectionView& directions, long long q, float gq[3]) {
+  if (directions.direction == nullptr) return;
+  const float* n = directions.direction + directions.stride * q;
   if (n[0] == 0.f && n[1] == 0.f && n[2] == 0.f) return;
-  for (int d = 0; d < 3; ++d) gq[d] = crack_scale * n[d];
+  for (int d = 0; d < 3; ++d) gq[d] = directions.scale * n[d];
 }
 
 // Reference key of a particle with damage gradient g: the high word orders by |g|^2 (the bits of a

@@ -33,12 +33,12 @@ HOST_DEVICE inline void stencil_base(const float* x, const MPMGeometry& geo, int
 struct G2PInputs {
   const float* x;
   const float* F_E;
-  const float* alpha;
+  const float* state;           // (N, state_stride) material state (csrc/common/material_law.h)
+  int state_stride;
   const uint8_t* fractured;
   const int32_t* grid_id;
   const int32_t* material_id;
   const float* material_table;  // (M, kMatFields)
-  const float* strength;        // (N) tensile strength of brittle particles, or nullptr (the table's)
   float clamp_lower[3];         // particle positions are clamped into [clamp_lower, clamp_upper]
   float clamp_upper[3];
 };
@@ -48,10 +48,10 @@ struct G2POutputs {
   float* v;
   float* C;
   float* F_E;
-  float* alpha;
+  float* state;   // (N, state_stride) like the input
   float* stress;
   uint8_t* fractured;
-  float* dissipated = nullptr;  // (N) energy per unit rest volume brittle damage took in the substep, or nullptr
+  float* dissipated = nullptr;  // (N) energy per unit rest volume the update took in the substep, or nullptr
 };
 
 // Health of the particles after G2P, reduced over all particles (order-independent).
@@ -160,31 +160,29 @@ HOST_DEVICE inline const float* g2p_material_row(long long q, const G2PInputs& i
   return in.material_table + (long long)in.material_id[q] * kMatFields;
 }
 
-// Stores the result of particle q's return map (and the energy its damage took) and latches its
-// fracture flag.
+// Stores the result of particle q's update (state: kMaxStateFields floats; dissipated: the energy
+// it took) and latches its fracture flag (state field 0 at the material's threshold).
 HOST_DEVICE inline void g2p_store_material(long long q, const G2PInputs& in, const G2POutputs& out, const float F_E[9],
-                                           float alpha, const float tau[9], float dissipated) {
+                                           const float* state, const float tau[9], float dissipated) {
   if (out.dissipated != nullptr) out.dissipated[q] = dissipated;
   for (int i = 0; i < 9; ++i) {
     out.F_E[9 * q + i] = F_E[i];
     out.stress[9 * q + i] = tau[i];
   }
-  out.alpha[q] = alpha;
-  out.fractured[q] = (in.fractured[q] || alpha >= g2p_material_row(q, in)[kMatFractureThreshold]) ? 1 : 0;
+  store_state(state, in.state_stride, q, out.state);
+  out.fractured[q] = (in.fractured[q] || state[0] >= g2p_material_row(q, in)[kMatFractureThreshold]) ? 1 : 0;
 }
 
-// G2P of particle q: gather and advection (g2p_gather), the material's return map on
-// F_trial, and the fracture flag. Returns true if the position had to be clamped.
-// The material part of G2P: return map of F_trial (overwritten), stress, fracture flag.
+// The material part of G2P: update of F_trial (overwritten), stress, state, fracture flag.
 HOST_DEVICE inline void g2p_material(long long q, const G2PInputs& in, const G2POutputs& out, float F[9]) {
-  float alpha = in.alpha[q];
-  float tau[9];
-  const float* row = g2p_material_row(q, in);
-  float dissipated;
-  constitutive_update(row, F, &alpha, tau, particle_strength(in.strength, q, row), &dissipated);
-  g2p_store_material(q, in, out, F, alpha, tau, dissipated);
+  float state[kMaxStateFields], tau[9], dissipated;
+  load_state(in.state, in.state_stride, q, state);
+  constitutive_update(g2p_material_row(q, in), F, state, tau, &dissipated);
+  g2p_store_material(q, in, out, F, state, tau, dissipated);
 }
 
+// G2P of particle q: gather and advection (g2p_gather), the material's update on F_trial, and
+// the fracture flag. Returns true if the position had to be clamped.
 HOST_DEVICE inline bool g2p_particle(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
                                      const float* grid_velocity, const G2POutputs& out) {
   float F[9];

@@ -37,35 +37,34 @@ class FlushDenormals {
 
 struct ConstitutiveBatch {
   float F[9][kBatchLanes];  // F_trial (input)
-  float alpha_in[kBatchLanes];
+  float state_in[kMaxStateFields][kBatchLanes];
   float row[kMatFields][kBatchLanes];  // material parameters of each lane
-  float strength[kBatchLanes];         // tensile strength of each lane's particle (brittle model)
   float F_out[9][kBatchLanes];
-  float alpha_out[kBatchLanes];
+  float state_out[kMaxStateFields][kBatchLanes];
   float tau[9][kBatchLanes];
-  float dissipated[kBatchLanes];       // energy per unit rest volume the brittle damage took (output)
+  float dissipated[kBatchLanes];  // energy per unit rest volume the update took (output)
   int32_t valid[kBatchLanes];  // 1 where the eigen path handled the lane (int32: a bool store blocks vectorising)
 
-  // Lane l takes F_trial, alpha, a material-table row (kMatFields floats) and the particle's strength.
-  void set(int l, const float* F_trial, float alpha, const float* mat_row, float particle_strength) {
+  // Lane l takes F_trial, the particle's state (stride floats) and its material-table row
+  // (kMatFields floats).
+  void set(int l, const float* F_trial, const float* state, int stride, const float* mat_row) {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) F[i][l] = F_trial[i];
-    alpha_in[l] = alpha;
-    strength[l] = particle_strength;
+    #pragma GCC unroll 9
+    for (int k = 0; k < kMaxStateFields; ++k) state_in[k][l] = k < stride ? state[k] : 0.f;
     #pragma GCC unroll 9
     for (int k = 0; k < kMatFields; ++k) row[k][l] = mat_row[k];
   }
 
-  // Lanes [count, kBatchLanes) get an undeformed elastic particle (results unused).
+  // Lanes [count, kBatchLanes) get an undeformed particle of model 0 (results unused).
   void pad(int count) {
     for (int l = count; l < kBatchLanes; ++l) {
       #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) F[i][l] = (i % 4 == 0) ? 1.f : 0.f;
-      alpha_in[l] = 0.f;
-      strength[l] = 1.f;
+      #pragma GCC unroll 9
+      for (int k = 0; k < kMaxStateFields; ++k) state_in[k][l] = 0.f;
       #pragma GCC unroll 9
       for (int k = 0; k < kMatFields; ++k) row[k][l] = 0.f;
-      row[kMatModel][l] = static_cast<float>(kModelElastic);
     }
   }
 
@@ -73,53 +72,58 @@ struct ConstitutiveBatch {
   void run(int count) {
     {
       FlushDenormals guard;
-      eigen_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], dissipated, valid);
+      eigen_lanes(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0], &tau[0][0], dissipated,
+                  valid);
     }
     for (int l = 0; l < count; ++l) {
       if (valid[l]) continue;
-      float Fl[9], tl[9], mat_row[kMatFields];
+      float Fl[9], tl[9], mat_row[kMatFields], state[kMaxStateFields];
       for (int i = 0; i < 9; ++i) Fl[i] = F[i][l];
       for (int k = 0; k < kMatFields; ++k) mat_row[k] = row[k][l];
-      float a = alpha_in[l];
-      constitutive_update(mat_row, Fl, &a, tl, strength[l], &dissipated[l]);
+      for (int k = 0; k < kMaxStateFields; ++k) state[k] = state_in[k][l];
+      constitutive_update(mat_row, Fl, state, tl, &dissipated[l]);
       for (int i = 0; i < 9; ++i) {
         F_out[i][l] = Fl[i];
         tau[i][l] = tl[i];
       }
-      alpha_out[l] = a;
+      for (int k = 0; k < kMaxStateFields; ++k) state_out[k][l] = state[k];
     }
   }
 
-  // Lane l's F (into Fl) and material row with its strength, from [component][lane] arrays.
-  static FGS_FORCE_INLINE MaterialRow load_lane(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT rows,
-                                                const float* FGS_RESTRICT strength, int l, float Fl[9]) {
+  // Lane l's F (into Fl), state (into state) and material row, from [component][lane] arrays.
+  static FGS_FORCE_INLINE MaterialRow load_lane(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT state_in,
+                                                const float* FGS_RESTRICT rows, int l, float Fl[9],
+                                                float state[kMaxStateFields]) {
 #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) Fl[i] = F_in[i * kBatchLanes + l];
-    return MaterialRow{rows[kMatModel * kBatchLanes + l], rows[kMatMu * kBatchLanes + l],
-                       rows[kMatLambda * kBatchLanes + l], rows[kMatBulk * kBatchLanes + l],
-                       rows[4 * kBatchLanes + l],         rows[5 * kBatchLanes + l],
-                       rows[6 * kBatchLanes + l],         strength[l]};
+#pragma GCC unroll 9
+    for (int k = 0; k < kMaxStateFields; ++k) state[k] = state_in[k * kBatchLanes + l];
+    return MaterialRow{rows[kMatModel * kBatchLanes + l],
+                       rows[kMatMu * kBatchLanes + l],
+                       rows[kMatLambda * kBatchLanes + l],
+                       rows[kMatBulk * kBatchLanes + l],
+                       {rows[kMatParameter * kBatchLanes + l], rows[(kMatParameter + 1) * kBatchLanes + l],
+                        rows[(kMatParameter + 2) * kBatchLanes + l]}};
   }
 
-  // The eigen path (constitutive_stress_eig, then projected_deformation) on every lane; arrays are [component][lane]. Two vectorised loops:
-  // the stress half on every lane, then F_E = projected_deformation only if some lane was
-  // projected (most batches stay inside the yield surface: F_E = F_trial, no exp needed).
-  static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
-                          const float* FGS_RESTRICT rows, const float* FGS_RESTRICT strength,
-                          float* FGS_RESTRICT F_E, float* FGS_RESTRICT alpha_new,
-                          float* FGS_RESTRICT tau_out, float* FGS_RESTRICT dissipated, int32_t* FGS_RESTRICT ok) {
+  // The eigen path (constitutive_stress_eig, then projected_deformation) on every lane; arrays are
+  // [component][lane]. Two vectorised loops: the stress half on every lane, then F_E =
+  // projected_deformation only if some lane was projected (most batches keep F: no exp needed).
+  static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT state_in,
+                          const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
+                          float* FGS_RESTRICT state_new, float* FGS_RESTRICT tau_out,
+                          float* FGS_RESTRICT dissipated, int32_t* FGS_RESTRICT ok) {
     double Q[9][kBatchLanes], log_stretch[3][kBatchLanes];
     float projected[kBatchLanes];
     // `#pragma omp simd` would turn the callee's by-reference locals into per-lane arrays before
     // inlining and then fail to vectorise; the plain vectoriser after inlining does not.
 #pragma GCC ivdep
     for (int l = 0; l < kBatchLanes; ++l) {
-      float Fl[9], tl[9];
-      const MaterialRow m = load_lane(F_in, rows, strength, l, Fl);
-      float a = alpha[l];
+      float Fl[9], tl[9], state[kMaxStateFields];
+      const MaterialRow m = load_lane(F_in, state_in, rows, l, Fl, state);
       EigProjection proj;
       float taken;
-      ok[l] = constitutive_stress_eig(m, Fl, &a, tl, &proj, &taken) ? 1 : 0;
+      ok[l] = constitutive_stress_eig(m, Fl, state, tl, &proj, &taken) ? 1 : 0;
       dissipated[l] = taken;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
@@ -129,7 +133,8 @@ struct ConstitutiveBatch {
 #pragma GCC unroll 9
       for (int i = 0; i < 3; ++i) log_stretch[i][l] = proj.log_stretch[i];
       projected[l] = proj.projected;
-      alpha_new[l] = a;
+#pragma GCC unroll 9
+      for (int k = 0; k < kMaxStateFields; ++k) state_new[k * kBatchLanes + l] = state[k];
     }
     float any_projected = 0.f;
     for (int l = 0; l < kBatchLanes; ++l) any_projected += projected[l];
@@ -155,31 +160,30 @@ struct ConstitutiveBatch {
   }
 
   // constitutive_small_strain on every lane: small[l] = 1 where it applies, and there F_out,
-  // alpha_out and tau hold the result. The other lanes' outputs are meaningless.
+  // state_out and tau hold the result (and the update dissipated nothing). The other lanes'
+  // outputs are meaningless.
   void run_small_strain(int32_t small[kBatchLanes]) {
     FlushDenormals guard;
-    small_strain_lanes(&F[0][0], alpha_in, &row[0][0], strength, &F_out[0][0], alpha_out, &tau[0][0], small);
-    // The series path never takes a brittle state whose damage grows (it is left to the eigen path).
+    small_strain_lanes(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0], &tau[0][0], small);
     for (int l = 0; l < kBatchLanes; ++l) dissipated[l] = 0.f;
   }
 
-  static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT alpha,
-                                 const float* FGS_RESTRICT rows, const float* FGS_RESTRICT strength,
-                                 float* FGS_RESTRICT F_E,
-                                 float* FGS_RESTRICT alpha_new, float* FGS_RESTRICT tau_out,
+  static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT state_in,
+                                 const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
+                                 float* FGS_RESTRICT state_new, float* FGS_RESTRICT tau_out,
                                  int32_t* FGS_RESTRICT small) {
 #pragma GCC ivdep
     for (int l = 0; l < kBatchLanes; ++l) {
-      float Fl[9], Fo[9], tl[9];
-      const MaterialRow m = load_lane(F_in, rows, strength, l, Fl);
-      float a = alpha[l];
-      small[l] = constitutive_small_strain(m, Fl, &a, Fo, tl) ? 1 : 0;
+      float Fl[9], Fo[9], tl[9], state[kMaxStateFields];
+      const MaterialRow m = load_lane(F_in, state_in, rows, l, Fl, state);
+      small[l] = constitutive_small_strain(m, Fl, state, Fo, tl) ? 1 : 0;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
         tau_out[i * kBatchLanes + l] = tl[i];
         F_E[i * kBatchLanes + l] = Fo[i];
       }
-      alpha_new[l] = a;
+#pragma GCC unroll 9
+      for (int k = 0; k < kMaxStateFields; ++k) state_new[k * kBatchLanes + l] = state[k];
     }
   }
 
@@ -187,19 +191,20 @@ struct ConstitutiveBatch {
   void set_from(int l, const ConstitutiveBatch& other, int from) {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) F[i][l] = other.F[i][from];
-    alpha_in[l] = other.alpha_in[from];
-    strength[l] = other.strength[from];
+    #pragma GCC unroll 9
+    for (int k = 0; k < kMaxStateFields; ++k) state_in[k][l] = other.state_in[k][from];
     #pragma GCC unroll 9
     for (int k = 0; k < kMatFields; ++k) row[k][l] = other.row[k][from];
   }
 
-  void get(int l, float* F_E, float* alpha, float* tau_out, float* taken) const {
+  void get(int l, float* F_E, float* state, float* tau_out, float* taken) const {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) {
       F_E[i] = F_out[i][l];
       tau_out[i] = tau[i][l];
     }
-    *alpha = alpha_out[l];
+    #pragma GCC unroll 9
+    for (int k = 0; k < kMaxStateFields; ++k) state[k] = state_out[k][l];
     *taken = dissipated[l];
   }
 };
@@ -212,13 +217,15 @@ struct ConstitutiveBatch {
 // Every lane computes only from its own inputs, so a particle's result does not depend on which
 // particles share its batches (and so not on the number of threads).
 //
-// Results come back through store(id, F_E, alpha, tau, dissipated), in no particular order; call
-// finish() after the last push(). dissipated: the energy per unit rest volume brittle damage took.
+// Results come back through store(id, F_E, state, tau, dissipated) (state: kMaxStateFields floats),
+// in no particular order; call finish() after the last push(). dissipated: the energy per unit
+// rest volume the update took.
 class ConstitutiveStream {
  public:
+  // state: the particle's row of the state block (stride floats).
   template <class Store>
-  void push(long long id, const float F_trial[9], float alpha, const float* mat_row, float strength, Store&& store) {
-    fresh_.set(n_fresh_, F_trial, alpha, mat_row, strength);
+  void push(long long id, const float F_trial[9], const float* state, int stride, const float* mat_row, Store&& store) {
+    fresh_.set(n_fresh_, F_trial, state, stride, mat_row);
     fresh_id_[n_fresh_++] = id;
     if (n_fresh_ == kBatchLanes) run_fresh(store);
   }
@@ -257,9 +264,9 @@ class ConstitutiveStream {
 
   template <class Store>
   static void emit(const ConstitutiveBatch& batch, int l, long long id, Store& store) {
-    float F_E[9], alpha, tau[9], taken;
-    batch.get(l, F_E, &alpha, tau, &taken);
-    store(id, F_E, alpha, tau, taken);
+    float F_E[9], state[kMaxStateFields], tau[9], taken;
+    batch.get(l, F_E, state, tau, &taken);
+    store(id, F_E, static_cast<const float*>(state), tau, taken);
   }
 
   ConstitutiveBatch fresh_, slow_;

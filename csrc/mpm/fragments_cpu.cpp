@@ -145,7 +145,7 @@ void for_cells_by_color(const BinsView& bins, const Body& body) {
 
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
                             uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                            const float* crack_normal, float crack_scale, float* damage_gradient, int64_t* reference) {
+                            const DirectionView& directions, float* damage_gradient, int64_t* reference) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
@@ -189,7 +189,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
         continue;
       }
       span_damage_gradient(span_damage, l, aw, gq);  // D_i from the cell's span
-      apply_crack_normal(crack_normal, crack_scale, q, gq);
+      apply_split_direction(directions, q, gq);
       const int64_t key = damage_key(gq, q);
       if (!key_is_split(key, split_bits)) continue;  // a key below the threshold splits no node
       any_key = true;

@@ -25,14 +25,14 @@ __device__ inline long long key_node(const int32_t* keys, long long t, const MPM
 
 __global__ void reference_kernel(long long n, const float* x, const int32_t* grid_id, MPMGeometry geo, float mass_eps,
                                  uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                                 const float* crack_normal, float crack_scale, float* damage_gradient,
+                                 DirectionView directions, float* damage_gradient,
                                  int64_t* reference) {
   const long long q = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (q >= n) return;
   const int g = grid_id[q];
   float* gq = damage_gradient + 3 * q;
   particle_damage_gradient(x + 3 * q, g, geo, grid_mass, grid_damage, mass_eps, gq);
-  apply_crack_normal(crack_normal, crack_scale, q, gq);
+  apply_split_direction(directions, q, gq);
   const int64_t key = damage_key(gq, q);
   if (!key_is_split(key, split_bits)) return;  // a key below the threshold splits no node
   AxisWeights aw[3];
@@ -118,11 +118,11 @@ __global__ void clear_kernel(const int32_t* keys, int n_keys, MPMGeometry geo, G
 
 void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
                              float mass_eps, uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                             const float* crack_normal, float crack_scale, float* damage_gradient,
+                             const DirectionView& directions, float* damage_gradient,
                              int64_t* reference, void* stream) {
   if (n == 0) return;
   reference_kernel<<<blocks_for(n, kThreads), kThreads, 0, as_stream(stream)>>>(
-      n, x, grid_id, geo, mass_eps, split_bits, grid_mass, grid_damage, crack_normal, crack_scale, damage_gradient,
+      n, x, grid_id, geo, mass_eps, split_bits, grid_mass, grid_damage, directions, damage_gradient,
       reference);
 }
 

@@ -1,6 +1,7 @@
 // torch <-> raw-pointer glue for the material kernels (csrc/mpm/material_kernels.*).
 #include "mpm/material_bind.h"
 
+#include <string>
 #include <tuple>
 
 #include "common/constitutive.h"
@@ -41,62 +42,63 @@ void check_table(const torch::Tensor& table, const torch::Tensor& material_id, i
 }
 
 
-// A per-particle float tensor of shape (n,) on `device` (contiguous copy).
-torch::Tensor particle_scalars(const torch::Tensor& t, const char* name, int64_t n, const torch::Device& device) {
-  TORCH_CHECK_VALUE(t.dim() == 1 && t.size(0) == n, name, " must have shape (", n, ",), got ", t.sizes());
-  check_float_tensor(t, name);
-  TORCH_CHECK_VALUE(t.device() == device, name, " must be on ", device);
+// A material state block (n, stride) on `device`, 1 <= stride <= kMaxStateFields (contiguous copy); an
+// (n,) tensor is a block of one field.
+torch::Tensor state_block(const torch::Tensor& t, int64_t n, const torch::Device& device) {
+  TORCH_CHECK_VALUE((t.dim() == 1 && t.size(0) == n) ||
+                        (t.dim() == 2 && t.size(0) == n && t.size(1) >= 1 && t.size(1) <= kMaxStateFields),
+                    "state must have shape (", n, ",) or (", n, ", S) with 1 <= S <= ",
+                    static_cast<int>(kMaxStateFields), ", got ", t.sizes());
+  check_float_tensor(t, "state");
+  TORCH_CHECK_VALUE(t.device() == device, "state must be on ", device);
   return t.contiguous();
 }
 
-std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
-    const torch::Tensor& F_trial, const torch::Tensor& alpha, const torch::Tensor& material_table,
-    const torch::Tensor& material_id, const std::optional<torch::Tensor>& strength) {
+std::tuple<torch::Tensor, torch::Tensor, torch::Tensor, torch::Tensor> constitutive_update_op(
+    const torch::Tensor& F_trial, const torch::Tensor& state, const torch::Tensor& material_table,
+    const torch::Tensor& material_id) {
   check_deformation(F_trial, "F_trial");
   const int64_t n = F_trial.size(0);
-  TORCH_CHECK_VALUE(alpha.dim() == 1 && alpha.size(0) == n, "alpha must have shape (", n,
-                    ",), got ", alpha.sizes());
-  check_float_tensor(alpha, "alpha");
-  TORCH_CHECK_VALUE(alpha.device() == F_trial.device(), "alpha must be on ", F_trial.device());
+  const auto state_in = state_block(state, n, F_trial.device());
+  const int stride = state_in.dim() == 1 ? 1 : static_cast<int>(state_in.size(1));
   check_table(material_table, material_id, n, F_trial.device());
 
   const auto F_in = F_trial.contiguous();
-  const auto alpha_in = alpha.contiguous();
   const auto table = material_table.contiguous();
   const auto ids = material_id.contiguous();
-  const auto strength_in = strength ? particle_scalars(*strength, "strength", n, F_trial.device()) : torch::Tensor();
-  const float* strength_ptr = strength ? strength_in.data_ptr<float>() : nullptr;
   auto F_out = torch::empty_like(F_in);
-  auto alpha_out = torch::empty_like(alpha_in);
+  auto state_out = torch::empty_like(state_in);
   auto tau = torch::empty_like(F_in);
+  auto dissipated = torch::empty({n}, F_in.options());
   if (F_in.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
-    constitutive_update_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), strength_ptr,
-                             table.data_ptr<float>(), table.size(0), ids.data_ptr<int32_t>(),
-                             F_out.data_ptr<float>(), alpha_out.data_ptr<float>(),
-                             tau.data_ptr<float>(), current_cuda_stream());
+    constitutive_update_cuda(n, F_in.data_ptr<float>(), state_in.data_ptr<float>(), stride, table.data_ptr<float>(),
+                             table.size(0), ids.data_ptr<int32_t>(), F_out.data_ptr<float>(),
+                             state_out.data_ptr<float>(), tau.data_ptr<float>(), dissipated.data_ptr<float>(),
+                             current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "constitutive_update: fracture_gs._C was built without CUDA");
 #endif
   } else {
     const int64_t invalid = constitutive_update_cpu(
-        n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), strength_ptr, table.data_ptr<float>(),
-        table.size(0), ids.data_ptr<int32_t>(), F_out.data_ptr<float>(),
-        alpha_out.data_ptr<float>(), tau.data_ptr<float>());
+        n, F_in.data_ptr<float>(), state_in.data_ptr<float>(), stride, table.data_ptr<float>(), table.size(0),
+        ids.data_ptr<int32_t>(), F_out.data_ptr<float>(), state_out.data_ptr<float>(), tau.data_ptr<float>(),
+        dissipated.data_ptr<float>());
     TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
                       table.size(0), ")");
   }
-  return {F_out, alpha_out, tau};
+  return {F_out, state_out, tau, dissipated};
 }
 
-torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& alpha,
+torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& state,
                                 const torch::Tensor& material_table, const torch::Tensor& material_id) {
   check_deformation(F_E, "F_E");
   const int64_t n = F_E.size(0);
   check_table(material_table, material_id, n, F_E.device());
-  const auto alpha_in = particle_scalars(alpha, "alpha", n, F_E.device());
+  const auto state_in = state_block(state, n, F_E.device());
+  const int stride = state_in.dim() == 1 ? 1 : static_cast<int>(state_in.size(1));
   const auto F_in = F_E.contiguous();
   const auto table = material_table.contiguous();
   const auto ids = material_id.contiguous();
@@ -104,20 +106,39 @@ torch::Tensor elastic_energy_op(const torch::Tensor& F_E, const torch::Tensor& a
   if (F_in.is_cuda()) {
 #ifdef FGS_WITH_CUDA
     const c10::cuda::CUDAGuard guard(F_in.device());
-    elastic_energy_cuda(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(), table.size(0),
-                        ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_cuda_stream());
+    elastic_energy_cuda(n, F_in.data_ptr<float>(), state_in.data_ptr<float>(), stride, table.data_ptr<float>(),
+                        table.size(0), ids.data_ptr<int32_t>(), psi.data_ptr<float>(), current_cuda_stream());
     C10_CUDA_KERNEL_LAUNCH_CHECK();
 #else
     TORCH_CHECK(false, "elastic_energy: fracture_gs._C was built without CUDA");
 #endif
   } else {
-    const int64_t invalid = elastic_energy_cpu(n, F_in.data_ptr<float>(), alpha_in.data_ptr<float>(), table.data_ptr<float>(),
-                                               table.size(0), ids.data_ptr<int32_t>(),
+    const int64_t invalid = elastic_energy_cpu(n, F_in.data_ptr<float>(), state_in.data_ptr<float>(), stride,
+                                               table.data_ptr<float>(), table.size(0), ids.data_ptr<int32_t>(),
                                                psi.data_ptr<float>());
     TORCH_CHECK_VALUE(invalid == 0, "material_id: ", invalid, " particles have an id outside [0, ",
                       table.size(0), ")");
   }
   return psi;
+}
+
+// The models the kernels know (csrc/common/material_registry.h), for the Python side to check its
+// classes against: one dict per model with its code, name, parameter columns and state fields.
+pybind11::list material_models() {
+  pybind11::list models;
+  MaterialModels::for_each([&](auto model) {
+    using Model = decltype(model);
+    pybind11::list parameters, state;
+    for (const char* name : Model::kParameters) parameters.append(std::string(name));
+    for (const char* name : Model::kState) state.append(std::string(name));
+    pybind11::dict entry;
+    entry["code"] = Model::kCode;
+    entry["name"] = std::string(Model::kName);
+    entry["parameters"] = parameters;
+    entry["state"] = state;
+    models.append(entry);
+  });
+  return models;
 }
 
 std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torch::Tensor& F) {
@@ -147,13 +168,16 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torc
 
 void register_materials(pybind11::module& m) {
   m.def("constitutive_update", &constitutive_update_op,
-        "Return map + Kirchhoff stress per particle: (F_trial (N,3,3) f32, alpha (N,) f32, "
-        "material_table (M,8) f32, material_id (N,) i32, strength (N,) f32 or None) -> (F_E, alpha_new, tau)",
-        pybind11::arg("F_trial"), pybind11::arg("alpha"), pybind11::arg("material_table"),
-        pybind11::arg("material_id"), pybind11::arg("strength") = pybind11::none());
+        "The material update per particle: (F_trial (N,3,3) f32, state (N,S) or (N,) f32, material_table (M,8) f32, "
+        "material_id (N,) i32) -> (F_E, state_new (shaped as state), tau, dissipated (N,))",
+        pybind11::arg("F_trial"), pybind11::arg("state"), pybind11::arg("material_table"),
+        pybind11::arg("material_id"));
   m.def("elastic_energy", &elastic_energy_op,
-        "Elastic energy density per unit rest volume: (F_E, alpha, material_table, material_id) -> psi (N,)",
-        pybind11::arg("F_E"), pybind11::arg("alpha"), pybind11::arg("material_table"), pybind11::arg("material_id"));
+        "Elastic energy density per unit rest volume: (F_E, state (N,S) or (N,), material_table, material_id) -> psi (N,)",
+        pybind11::arg("F_E"), pybind11::arg("state"), pybind11::arg("material_table"), pybind11::arg("material_id"));
+  m.def("material_models", &material_models,
+        "The material models of the kernels: [{code, name, parameters, state}] in code order");
+  m.attr("max_state_fields") = static_cast<int>(kMaxStateFields);
   m.def("svd3_batch", &svd3_batch_op,
         "F = U diag(sigma) V^T with det U = det V = +1: F (N,3,3) f32 -> (U, sigma (N,3), V)",
         pybind11::arg("F"));

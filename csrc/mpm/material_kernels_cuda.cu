@@ -15,28 +15,27 @@ inline unsigned int blocks_for(int64_t n) {
   return static_cast<unsigned int>((n + kThreads - 1) / kThreads);
 }
 
-__global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ F_trial,
-                                           const float* __restrict__ alpha_in, const float* __restrict__ strength,
-                                           const float* __restrict__ material_table,
-                                           int64_t n_materials,
-                                           const int32_t* __restrict__ material_id,
-                                           float* F_out, float* alpha_out,
-                                           float* __restrict__ tau_out) {
+__global__ void constitutive_update_kernel(int64_t n, const float* __restrict__ F_trial, const float* state_in,
+                                           int stride, const float* __restrict__ material_table, int64_t n_materials,
+                                           const int32_t* __restrict__ material_id, float* F_out, float* state_out,
+                                           float* __restrict__ tau_out, float* __restrict__ dissipated) {
   const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= n) return;
-  constitutive_update_particle(i, F_trial, alpha_in, strength, material_table, n_materials, material_id, F_out,
-                               alpha_out, tau_out);
+  constitutive_update_particle(i, F_trial, state_in, stride, material_table, n_materials, material_id, F_out,
+                               state_out, tau_out, dissipated);
 }
 
-__global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F, const float* __restrict__ alpha,
-                                      const float* __restrict__ material_table, int64_t n_materials,
-                                      const int32_t* __restrict__ material_id,
-                                      float* __restrict__ psi) {
+__global__ void elastic_energy_kernel(int64_t n, const float* __restrict__ F, const float* __restrict__ state,
+                                      int stride, const float* __restrict__ material_table, int64_t n_materials,
+                                      const int32_t* __restrict__ material_id, float* __restrict__ psi) {
   const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
   if (i >= n) return;
   const int32_t id = material_id[i];
+  float particle_state[kMaxStateFields];
+  load_state(state, stride, i, particle_state);
   psi[i] = (id >= 0 && id < n_materials)
-               ? elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i, alpha[i])
+               ? elastic_energy_density(material_table + kMatFields * static_cast<int64_t>(id), F + 9 * i,
+                                        particle_state)
                : NAN;
 }
 
@@ -49,20 +48,19 @@ __global__ void svd3_batch_kernel(int64_t n, const float* __restrict__ F, float*
 
 }  // namespace
 
-void constitutive_update_cuda(int64_t n, const float* F_trial, const float* alpha_in, const float* strength,
-                              const float* material_table, int64_t n_materials,
-                              const int32_t* material_id, float* F_out, float* alpha_out,
-                              float* tau_out, void* stream) {
+void constitutive_update_cuda(int64_t n, const float* F_trial, const float* state_in, int stride,
+                              const float* material_table, int64_t n_materials, const int32_t* material_id,
+                              float* F_out, float* state_out, float* tau_out, float* dissipated, void* stream) {
   if (n == 0) return;
   constitutive_update_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
-      n, F_trial, alpha_in, strength, material_table, n_materials, material_id, F_out, alpha_out, tau_out);
+      n, F_trial, state_in, stride, material_table, n_materials, material_id, F_out, state_out, tau_out, dissipated);
 }
 
-void elastic_energy_cuda(int64_t n, const float* F, const float* alpha, const float* material_table,
+void elastic_energy_cuda(int64_t n, const float* F, const float* state, int stride, const float* material_table,
                          int64_t n_materials, const int32_t* material_id, float* psi, void* stream) {
   if (n == 0) return;
   elastic_energy_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
-      n, F, alpha, material_table, n_materials, material_id, psi);
+      n, F, state, stride, material_table, n_materials, material_id, psi);
 }
 
 void svd3_batch_cuda(int64_t n, const float* F, float* U, float* sigma, float* V, void* stream) {

@@ -119,7 +119,7 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
                           const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks,
                           int64_t n_grids, double mass_eps, double split_gradient, const Tensor& grid_mass,
                           const Tensor& grid_damage, Tensor grid_reference,
-                          const std::optional<Tensor>& crack_normal, double crack_scale) {
+                          const std::optional<Tensor>& split_direction, double direction_scale) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const uint32_t split_bits = split_bits_of(split_gradient);
   TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
@@ -132,24 +132,30 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
   check_tensor(grid_mass, "grid_mass", torch::kFloat32, x);
   TORCH_CHECK(grid_damage.numel() >= k_nodes && grid_reference.numel() >= k_nodes && grid_mass.numel() >= k_nodes,
               "fragment_reference: grid fields are smaller than the object grids");
-  if (crack_normal) {
-    check_tensor(*crack_normal, "crack_normal", torch::kFloat32, x);
-    TORCH_CHECK(crack_normal->numel() == 3 * x.size(0), "fragment_reference: crack_normal must be (N, 3)");
+  // split_direction: (N, 3) or a view of 3 columns of a (N, S) block (row stride S, unit column stride).
+  DirectionView directions{nullptr, 0, (float)direction_scale};
+  if (split_direction) {
+    const Tensor& d = *split_direction;
+    TORCH_CHECK(d.scalar_type() == torch::kFloat32 && d.device() == x.device(),
+                "fragment_reference: split_direction must be float32 on the particles' device");
+    TORCH_CHECK(d.dim() == 2 && d.size(0) == x.size(0) && d.size(1) == 3 && d.stride(1) == 1 && d.stride(0) >= 3,
+                "fragment_reference: split_direction must be (N, 3) with rows of unit column stride");
+    directions.direction = d.data_ptr<float>();
+    directions.stride = d.stride(0);
   }
-  const float* normals = crack_normal ? crack_normal->data_ptr<float>() : nullptr;
   Tensor damage_gradient = torch::empty({x.size(0), 3}, x.options());  // every row is written
   if (x.device().is_cpu()) {
     for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
     Tensor color_start = bins[4];
     const BinsView view = bins_view(bins, color_start);
     fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, split_bits, grid_mass.data_ptr<float>(),
-                           grid_damage.data_ptr<float>(), normals, (float)crack_scale,
-                           damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>());
+                           grid_damage.data_ptr<float>(), directions, damage_gradient.data_ptr<float>(),
+                           grid_reference.data_ptr<int64_t>());
     return damage_gradient;
   }
 #ifdef FGS_WITH_CUDA
   fragment_reference_cuda(x.size(0), x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), geo, (float)mass_eps,
-                          split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), normals, (float)crack_scale,
+                          split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), directions,
                           damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>(), current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
@@ -408,28 +414,25 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
 
 // Writes the outputs into the given tensors; returns (clamped, first_nonfinite or -1, max |v|).
 std::tuple<int64_t, int64_t, double> g2p(
-    const Tensor& x, const Tensor& F_E, const Tensor& alpha, const Tensor& fractured, const Tensor& grid_id,
-    const Tensor& material_id, const Tensor& material_table, const std::optional<Tensor>& strength,
-    const Tensor& grid_velocity,
+    const Tensor& x, const Tensor& F_E, const Tensor& state, const Tensor& fractured, const Tensor& grid_id,
+    const Tensor& material_id, const Tensor& material_table, const Tensor& grid_velocity,
     const std::vector<double>& lower, double dx, const std::vector<int64_t>& blocks, int64_t n_grids, double dt,
     const std::vector<double>& clamp_lower, const std::vector<double>& clamp_upper, Tensor x_out, Tensor v_out,
-    Tensor C_out, Tensor F_out, Tensor alpha_out, Tensor stress_out, Tensor fractured_out,
+    Tensor C_out, Tensor F_out, Tensor state_out, Tensor stress_out, Tensor fractured_out,
     std::optional<std::vector<Tensor>> fragments, double split_gradient, std::optional<Tensor> dissipated_out) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   const int64_t n = x.size(0);
   check_tensor(x, "x", torch::kFloat32, x);
   check_tensor(F_E, "F_E", torch::kFloat32, x);
-  check_tensor(alpha, "alpha", torch::kFloat32, x);
+  check_tensor(state, "state", torch::kFloat32, x);
+  TORCH_CHECK(state.dim() == 2 && state.size(0) == n && state.size(1) >= 1 && state.size(1) <= kMaxStateFields,
+              "g2p: state must be (N, S) with 1 <= S <= ", kMaxStateFields);
   check_tensor(fractured, "fractured", torch::kBool, x);
   check_tensor(grid_id, "grid_id", torch::kInt32, x);
   check_tensor(material_id, "material_id", torch::kInt32, x);
   check_tensor(material_table, "material_table", torch::kFloat32, x);
   TORCH_CHECK(material_table.dim() == 2 && material_table.size(1) == kMatFields, "material_table must be (M, ",
               kMatFields, ")");
-  if (strength) {
-    check_tensor(*strength, "strength", torch::kFloat32, x);
-    TORCH_CHECK(strength->numel() == n, "g2p: strength must have one value per particle");
-  }
   FragmentView frag{};
   const FragmentView* frag_ptr = nullptr;
   if (fragments) {  // (damage_gradient, reference, split_particle[, side_mask]): the grids hold fields A and B
@@ -440,11 +443,11 @@ std::tuple<int64_t, int64_t, double> g2p(
   } else {
     check_grid(grid_velocity, "grid_velocity", 3, geo, x);
   }
-  TORCH_CHECK(F_E.numel() == 9 * n && alpha.numel() == n && fractured.numel() == n && grid_id.numel() == n &&
+  TORCH_CHECK(F_E.numel() == 9 * n && fractured.numel() == n && grid_id.numel() == n &&
                   material_id.numel() == n,
               "g2p: particle arrays have inconsistent sizes");
-  const Tensor* outs[] = {&x_out, &v_out, &C_out, &F_out, &alpha_out, &stress_out};
-  const int64_t out_sizes[] = {3 * n, 3 * n, 9 * n, 9 * n, n, 9 * n};
+  const Tensor* outs[] = {&x_out, &v_out, &C_out, &F_out, &state_out, &stress_out};
+  const int64_t out_sizes[] = {3 * n, 3 * n, 9 * n, 9 * n, state.numel(), 9 * n};
   for (int i = 0; i < 6; ++i) {
     check_tensor(*outs[i], "g2p output", torch::kFloat32, x);
     TORCH_CHECK(outs[i]->numel() == out_sizes[i], "g2p output has the wrong size");
@@ -454,18 +457,18 @@ std::tuple<int64_t, int64_t, double> g2p(
   G2PInputs in;
   in.x = x.data_ptr<float>();
   in.F_E = F_E.data_ptr<float>();
-  in.alpha = alpha.data_ptr<float>();
+  in.state = state.data_ptr<float>();
+  in.state_stride = (int)state.size(1);
   in.fractured = reinterpret_cast<const uint8_t*>(fractured.data_ptr<bool>());
   in.grid_id = grid_id.data_ptr<int32_t>();
   in.material_id = material_id.data_ptr<int32_t>();
   in.material_table = material_table.data_ptr<float>();
-  in.strength = strength ? strength->data_ptr<float>() : nullptr;
   for (int d = 0; d < 3; ++d) {
     in.clamp_lower[d] = (float)clamp_lower[d];
     in.clamp_upper[d] = (float)clamp_upper[d];
   }
   G2POutputs out{x_out.data_ptr<float>(), v_out.data_ptr<float>(), C_out.data_ptr<float>(), F_out.data_ptr<float>(),
-                 alpha_out.data_ptr<float>(), stress_out.data_ptr<float>(),
+                 state_out.data_ptr<float>(), stress_out.data_ptr<float>(),
                  reinterpret_cast<uint8_t*>(fractured_out.data_ptr<bool>())};
   if (dissipated_out) {
     check_tensor(*dissipated_out, "dissipated_out", torch::kFloat32, x);

@@ -519,8 +519,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
   {
     // Gather each particle, hand F_trial to the thread's constitutive stream, store what it returns.
     ConstitutiveStream stream;
-    auto store = [&](long long q, const float F_E[9], float alpha, const float tau[9], float dissipated) {
-      g2p_store_material(q, in, out, F_E, alpha, tau, dissipated);
+    auto store = [&](long long q, const float F_E[9], const float* state, const float tau[9], float dissipated) {
+      g2p_store_material(q, in, out, F_E, state, tau, dissipated);
       if (!finite_sum9(F_E)) first_bad = q < first_bad ? q : first_bad;
     };
     // Dynamic chunks: the constitutive cost varies between particles (eigen-path lanes); a
@@ -552,8 +552,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       } else {
         first_bad = q < first_bad ? q : first_bad;
       }
-      const float* row = g2p_material_row(q, in);
-      stream.push(q, F_trial, in.alpha[q], row, particle_strength(in.strength, q, row), store);
+      stream.push(q, F_trial, in.state + (long long)in.state_stride * q, in.state_stride, g2p_material_row(q, in),
+                  store);
     }
     stream.finish(store);
   }

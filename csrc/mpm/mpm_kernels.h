@@ -78,11 +78,11 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
 // Fragments (csrc/common/mpm_fragments.h). geo.n_grids = K object grids; the grid arrays hold 2K.
 // Damage gradient of every particle and, at every node its stencil reaches, the reference key
 // (reference must be zero on entry: P2G clears it on touched blocks). Only keys that split a node
-// (|grad D|^2 bits >= split_bits) are stored: the others could never be read. crack_normal (N, 3) or
-// nullptr: a particle with a non-zero row takes crack_scale times it as its vector (apply_crack_normal).
+// (|grad D|^2 bits >= split_bits) are stored: the others could never be read. directions: particles
+// with a non-zero split direction take it, scaled, as their vector (apply_split_direction).
 void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
                             uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                            const float* crack_normal, float crack_scale, float* damage_gradient, int64_t* reference);
+                            const DirectionView& directions, float* damage_gradient, int64_t* reference);
 // Sums field B (grid K + g) at the split nodes from the particles on side B there (field A keeps
 // P2G's sum of all particles); split_particle[q] = 1 if q's stencil reaches a split node, else 0,
 // side_mask[q] the bits (side_bit) of its stencil nodes where it is on side B (both written for
@@ -120,7 +120,7 @@ void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt
               const FragmentView* frag = nullptr);
 void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
                              float mass_eps, uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                             const float* crack_normal, float crack_scale, float* damage_gradient,
+                             const DirectionView& directions, float* damage_gradient,
                              int64_t* reference, void* stream);
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                        const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,

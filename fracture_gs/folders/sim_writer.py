@@ -37,15 +37,15 @@ _SOLVER_PREFIX = "solver/"
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
 OBJECT_COLUMNS = ("px", "py", "pz", "kinetic")
-TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z", "fracture_energy")
+TAIL_COLUMNS = ("fragments", "impulse_x", "impulse_y", "impulse_z", "dissipated_energy")
 
 
 def diagnostics_columns(object_names: Sequence[str]) -> list[str]:
     """CSV header: the columns of docs/file_formats.md §4, then ``<name>_px, _py, _pz, _kinetic`` per object, then
     ``fragments`` (pieces with >= 1 % of their object's particles), ``impulse_x, _y, _z`` (the
     impulse gravity and the boundaries gave since frame 0: p − p(0) equals it up to round-off) and
-    ``fracture_energy`` (the energy brittle damage has taken since frame 0: kinetic + elastic +
-    gravitational + fracture energy never grows); last, so old readers keep their column positions."""
+    ``dissipated_energy`` (the energy the material updates dissipated since frame 0, brittle damage's:
+    kinetic + elastic + gravitational + dissipated energy never grows); last, so old readers keep their column positions."""
     return list(BASE_COLUMNS) + [f"{name}_{col}" for name in object_names
                                  for col in OBJECT_COLUMNS] + list(TAIL_COLUMNS)
 
@@ -77,7 +77,7 @@ def diagnostics_row(frame: int, time: float, steps: int, dt_min: float,
         row += [*_vector3(obj["momentum"]), _scalar(obj["kinetic"])]
     row.append(int(_scalar(diagnostics["fragments"])))
     row += _vector3(diagnostics.get("external_impulse", [math.nan] * 3))
-    row.append(_scalar(diagnostics.get("fracture_energy", 0.0)))
+    row.append(_scalar(diagnostics.get("dissipated_energy", 0.0)))
     return row
 
 
@@ -266,11 +266,11 @@ def plot_diagnostics(columns: Sequence[str], rows: Sequence[Sequence[float]],
     for name, colour in (("kinetic", "tab:orange"), ("elastic", "tab:purple"),
                          ("gravitational", "tab:brown"), ("total_energy", "black")):
         ax_e.plot(time, col[name], color=colour, lw=2, label=name.replace("_", " "))
-    fracture = col.get("fracture_energy")
-    if fracture is not None and np.nanmax(np.abs(fracture)) > 0:
-        ax_e.plot(time, fracture, color="tab:cyan", lw=2, label="fracture energy")
-        ax_e.plot(time, col["total_energy"] + fracture, color="black", lw=1.5, ls="--",
-                  label="total + fracture")
+    dissipated = col.get("dissipated_energy")
+    if dissipated is not None and np.nanmax(np.abs(dissipated)) > 0:
+        ax_e.plot(time, dissipated, color="tab:cyan", lw=2, label="dissipated energy")
+        ax_e.plot(time, col["total_energy"] + dissipated, color="black", lw=1.5, ls="--",
+                  label="total + dissipated")
     for k, name in enumerate(object_names):
         ax_e.plot(time, col[f"{name}_kinetic"], color="tab:orange", lw=1,
                   ls=("--", ":", "-.")[k % 3], label=f"{name} kinetic")

@@ -1,8 +1,9 @@
 """``model: brittle``: elastic pieces that crack - porcelain, glass, ceramic, stone.
 
 The same Hencky elasticity as every material, no plasticity, and a per-particle damage d in [0, 1]
-that never decreases (the particle state; frames store it as ``damage``). Formulas
-(docs/formulas.md, "Brittle damage"; the kernels' copy is ``csrc/common/constitutive.h``):
+that never decreases (state field 0; frames store it as ``damage``), the particle's own strength
+and the normal of its crack plane (the rest of its state). Formulas (docs/formulas.md, "Brittle
+damage"; the kernels' law is ``csrc/common/materials/brittle.h``):
 
 * Rankine driving stress s: the largest principal value of the undegraded Cauchy stress τ₀ / J.
 * Crack band (Bažant & Oh 1983): in a band of width h the stress falls linearly from the
@@ -20,21 +21,26 @@ that never decreases (the particle state; frames store it as ``damage``). Formul
 * Weibull strength: σ_F,p = σ_F (V_ref ln R_p / (V_p ln 0.5))^(1/m), R_p a hash of the particle's
   index and the scene's seed (so runs, resumes, CPU and CUDA agree), V_ref the mean rest volume.
 * The crack band width h is the grid's cell size (``BAND_CELLS`` cells; docs/materials.md says why).
+* Crack plane: when a particle's damage becomes complete, the normal of its crack is the direction of
+  its largest principal stretch (of its largest principal stress, Rankine); afterwards the normal is
+  carried with the material like the normal of a material plane, n ← (I − Δt Cᵀ) n, normalised, and
+  oriented so that its dot product with ``CRACK_ORIENTATION`` is positive (the particles of one crack
+  plane share one orientation, whatever their order). The fragment partition splits the nodes around
+  it along that plane (``split_direction``; docs/design_mpm.md, "Fragments").
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
 
 from fracture_gs import keys
-from fracture_gs.materials.hencky import ELASTIC_KEYS, HenckyElasticity, compose, hencky_strain, proper_svd, \
-    require
+from fracture_gs.materials.hencky import ELASTIC_KEYS, compose, hencky_strain, proper_svd, require
+from fracture_gs.materials.model import MaterialModel, SubstepView, field, parameter
 
-MODEL_BRITTLE = 2
 BAND_CELLS = 1.0           # crack band width h in grid cells
 DEFAULT_WEIBULL_M = 0.0    # 0: every particle has the material's strength
 DEFAULT_RESIDUAL = 1e-3
@@ -42,6 +48,8 @@ DEFAULT_FRACTURE_DAMAGE = 0.5
 # The partition (crack opening) splits material whose damage is complete.
 COMPLETE_DAMAGE = 1.0
 _BRITTLE_KEYS = ("strength", "fracture_energy", "weibull_m", "residual", "fracture_damage")
+# Crack normals point to this side (a unit vector in no symmetry plane of the grid).
+CRACK_ORIENTATION = (0.2672612419124244, 0.5345224838248488, 0.8017837257372732)
 
 
 def degradation(damage: torch.Tensor, residual: torch.Tensor | float) -> torch.Tensor:
@@ -116,7 +124,7 @@ def tensile_energy_reference(F_E: torch.Tensor, mu: torch.Tensor, lam: torch.Ten
 
 
 @dataclass(frozen=True)
-class BrittleMaterial(HenckyElasticity):
+class BrittleMaterial(MaterialModel):
     """Rankine damage with crack-band softening, Weibull strength and tension-only degradation.
 
     ``strength`` σ_F (Pa; the median when ``weibull_m`` > 0), ``fracture_energy`` G_f (J/m²),
@@ -131,10 +139,13 @@ class BrittleMaterial(HenckyElasticity):
     fracture_damage: float = DEFAULT_FRACTURE_DAMAGE
 
     name: ClassVar[str] = "brittle"
+    code: ClassVar[int] = 2
     yaml_keys: ClassVar[tuple[str, ...]] = ("part", "model") + ELASTIC_KEYS + _BRITTLE_KEYS
-    model_code: ClassVar[int] = MODEL_BRITTLE
     parameter_columns: ClassVar[tuple[str, ...]] = ("strength", "crack_band", "residual")
-    alpha0: ClassVar[float] = 0.0  # initial damage
+    state_fields: ClassVar[tuple[str, ...]] = ("damage", "strength", "normal_x", "normal_y", "normal_z")
+    frame_fields: ClassVar[tuple[str, ...]] = ("damage",)
+    split_direction: ClassVar[str | None] = "normal_x"
+    dissipates: ClassVar[bool] = True
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -165,11 +176,6 @@ class BrittleMaterial(HenckyElasticity):
                 "fracture_damage": self.fracture_damage}
 
     @property
-    def initial_state(self) -> float:
-        """Initial damage of every particle: 0."""
-        return 0.0
-
-    @property
     def fracture_threshold(self) -> float:
         """Damage from which a particle counts as fractured (the flag latches)."""
         return self.fracture_damage
@@ -177,6 +183,17 @@ class BrittleMaterial(HenckyElasticity):
     def partition_threshold(self, damage_dilation: float) -> float:
         """Damage from which the fragment partition treats a particle as damaged: complete damage."""
         return COMPLETE_DAMAGE
+
+    @property
+    def piece_threshold(self) -> float:
+        """A particle with complete damage is a piece of its own when pieces are counted."""
+        return COMPLETE_DAMAGE
+
+    def initial_state(self, index: np.ndarray, rest_volume: np.ndarray, seed: int) -> np.ndarray:
+        """Damage 0, each particle's strength (``strengths``), no crack normal."""
+        state = np.zeros((len(index), len(self.state_fields)), dtype=np.float64)
+        state[:, self.state_fields.index("strength")] = self.strengths(index, rest_volume, seed)
+        return state
 
     @property
     def characteristic_length(self) -> float:
@@ -215,13 +232,11 @@ class BrittleMaterial(HenckyElasticity):
         unit crack area over G_f: 1 while it softens, σ_F² / B > 1 when it breaks at once."""
         return max(1.0, self.strength ** 2 / self.crack_band(cell_size))
 
-    def pack(self, cell_size: float | None = None) -> list[float]:
-        """One row of the material table (``fracture_gs.materials.table.TABLE_COLUMNS``); the crack
-        band needs the grid's cell size."""
+    def parameters(self, cell_size: float | None) -> tuple[float, ...]:
+        """σ_F, B and k (``parameter_columns``); the crack band needs the grid's cell size."""
         if cell_size is None or not cell_size > 0:
             raise ValueError("BrittleMaterial.pack: the crack band needs the grid's cell size (cell_size > 0)")
-        return self.elastic_row(MODEL_BRITTLE) + [self.strength, self.crack_band(cell_size), self.residual,
-                                                  self.fracture_damage]
+        return (self.strength, self.crack_band(cell_size), self.residual)
 
     def strengths(self, index: np.ndarray, rest_volume: np.ndarray, seed: int) -> np.ndarray:
         """Weibull-distributed strength σ_F,p (float64) of the particles with the given indices and rest
@@ -233,22 +248,51 @@ class BrittleMaterial(HenckyElasticity):
         ratio = volume.mean() * np.log(uniform) / (volume * math.log(0.5))
         return self.strength * ratio ** (1.0 / self.weibull_m)
 
-    @staticmethod
-    def update_rows(F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor, strength: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Torch twin of the kernels' update for particles of this model: (F_E, d', τ)."""
-        return brittle_update_reference(F_trial, state, rows[:, 1], rows[:, 2], rows[:, 3],
-                                        strength.to(F_trial.dtype), rows[:, 5], rows[:, 6])
+    @classmethod
+    def update_rows(cls, F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Torch twin of the kernels' update for particles of this model: (F_E = F_trial, state with
+        d', τ, (g(d) − g(d')) ψ⁺)."""
+        damage, residual = field(state, cls, "damage"), parameter(rows, cls, "residual")
+        F_E, damage_new, tau = brittle_update_reference(
+            F_trial, damage, rows[:, 1], rows[:, 2], rows[:, 3], field(state, cls, "strength").to(F_trial.dtype),
+            parameter(rows, cls, "crack_band"), residual)
+        state_new = state.clone()
+        state_new[:, cls.state_fields.index("damage")] = damage_new
+        taken = ((degradation(damage.to(F_trial.dtype), residual) - degradation(damage_new, residual))
+                 * tensile_energy_reference(F_E, rows[:, 1], rows[:, 2]))
+        return F_E, state_new, tau, taken
 
-    @staticmethod
-    def energy_rows(F_E: torch.Tensor, state: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
+    @classmethod
+    def energy_rows(cls, F_E: torch.Tensor, state: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
         """Torch twin of the kernels' energy density g(d) ψ⁺ + ψ⁻ for particles of this model."""
-        return brittle_energy_reference(F_E, state, rows[:, 1], rows[:, 2], rows[:, 6])
+        return brittle_energy_reference(F_E, field(state, cls, "damage"), rows[:, 1], rows[:, 2],
+                                        parameter(rows, cls, "residual"))
 
-    @staticmethod
-    def tensile_energy_rows(F_E: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:
-        """ψ⁺ of particles of this model (the energy damage takes a share of)."""
-        return tensile_energy_reference(F_E, rows[:, 1], rows[:, 2])
+    @classmethod
+    def after_substep(cls, view: SubstepView) -> None:
+        """Crack planes: carries the normals of cracked particles with the material and gives the
+        particles whose damage became complete in this substep the normal of their crack."""
+        first = cls.state_fields.index(cls.split_direction or "")
+        columns = slice(first, first + 3)
+        if "cracked" not in view.cache:   # rows with a crack normal, in the current particle order
+            view.cache["cracked"] = torch.nonzero((view.state[:, columns] != 0).any(1)).flatten()
+        cracked = view.cache["cracked"]
+        if len(cracked):
+            normal = view.state[cracked, columns]
+            normal = normal - view.dt * (view.C[cracked].mT @ normal[:, :, None])[:, :, 0]
+            view.state[cracked, columns] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
+        damage = cls.state_fields.index("damage")
+        grew = torch.nonzero(view.mine & (view.state[:, damage] > view.state_old[:, damage])).flatten()
+        cracked_now = grew[view.state[grew, damage] >= COMPLETE_DAMAGE]   # was below 1 before this substep
+        if len(cracked_now):
+            F = view.F_E[cracked_now].double()
+            _, vectors = torch.linalg.eigh(F @ F.mT)
+            normal = vectors[:, :, -1]
+            orientation = torch.tensor(CRACK_ORIENTATION, dtype=normal.dtype, device=normal.device)
+            sign = torch.where(normal @ orientation < 0, -1.0, 1.0).to(normal.dtype)
+            view.state[cracked_now, columns] = (normal * sign[:, None]).float()
+            view.cache["cracked"] = torch.cat([cracked, cracked_now])
 
 
 def hash_uniform(index: np.ndarray, seed: int) -> np.ndarray:
@@ -260,19 +304,3 @@ def hash_uniform(index: np.ndarray, seed: int) -> np.ndarray:
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         z = z ^ (z >> np.uint64(31))
     return ((z >> np.uint64(11)).astype(np.float64) + 0.5) * 2.0 ** -53
-
-
-def particle_strengths(materials: Sequence[Any], material_id: torch.Tensor, rest_volume: torch.Tensor,
-                       seed: int) -> torch.Tensor | None:
-    """(N,) float32 tensile strength of every particle (its index is its row), on material_id's device:
-    Weibull-distributed for brittle materials, 1 for the others; None if no material is brittle."""
-    brittle = [i for i, m in enumerate(materials) if isinstance(m, BrittleMaterial)]
-    if not brittle:
-        return None
-    ids = material_id.detach().cpu().numpy()
-    volume = rest_volume.detach().cpu().numpy()
-    out = np.ones(len(ids), dtype=np.float64)
-    for i in brittle:
-        rows = np.nonzero(ids == i)[0]
-        out[rows] = materials[i].strengths(rows, volume[rows], seed)
-    return torch.from_numpy(out.astype(np.float32)).to(material_id.device)

@@ -147,16 +147,6 @@ class HenckyElasticity:
         """P-wave speed sqrt((λ + 2μ)/ρ), used by the CFL time step."""
         return math.sqrt((self.lam + 2.0 * self.mu) / self.density)
 
-    @property
-    def initial_state(self) -> float:
-        """Initial value of the per-particle state: α0 (NACC; 0 and unused for the elastic model)."""
-        return getattr(self, "alpha0")
-
-    @property
-    def fracture_threshold(self) -> float:
-        """State from which a particle counts as fractured (the flag latches; inf: never)."""
-        return getattr(self, "alpha_threshold")
-
     def elastic_row(self, model_code: int) -> list[float]:
         """The first four columns of a table row: model, μ, λ, K."""
         return [float(model_code), self.mu, self.lam, self.bulk]

@@ -2,7 +2,8 @@
 
 NACC hardens in compression and loses cohesion in tension: dough, clay, sand and crumbling soil.
 The state is the hardening variable α (α0 = ln J_p0, more negative = stronger); a particle counts
-as fractured once α >= ``alpha_threshold``. Formulas: docs/formulas.md, "NACC plasticity".
+as fractured once α >= ``alpha_threshold``. Formulas: docs/formulas.md, "NACC plasticity"; the
+kernels' law: ``csrc/common/materials/nacc.h``.
 """
 from __future__ import annotations
 
@@ -12,12 +13,13 @@ from typing import Any, ClassVar
 
 import torch
 
-from fracture_gs import keys
-from fracture_gs.materials.hencky import (ELASTIC_KEYS, HenckyElasticity, as_float_tensor, compose,
-                                          energy_density_reference, hencky_strain, kirchhoff_from_strain,
-                                          proper_svd, require)
+import numpy as np
 
-MODEL_NACC = 1
+from fracture_gs import keys
+from fracture_gs.materials.hencky import (ELASTIC_KEYS, as_float_tensor, compose, energy_density_reference,
+                                          hencky_strain, kirchhoff_from_strain, proper_svd, require)
+from fracture_gs.materials.model import MaterialModel, parameter
+
 P0_FLOOR = 1e-5             # p0 = K (1e-5 + sinh(ξ max(-α, 0)))
 # Project when y > 1e-6 M² p0²: relative to the ellipse's own size, so a cohesionless particle
 # (p0 at its floor) is still projected and hardened (docs/design_mpm.md, "NACC tolerances").
@@ -99,7 +101,7 @@ _NACC_KEYS = ("alpha0", "Jp0", "beta", "xi", "M", "friction_angle", "alpha_thres
 
 
 @dataclass(frozen=True)
-class NACCMaterial(HenckyElasticity):
+class NACCMaterial(MaterialModel):
     """Non-associated Cam-Clay plasticity (Wolper et al. 2019) in Hencky strain.
 
     ``alpha0`` is the initial hardening state ln(J_p0) (more negative = stronger);
@@ -113,9 +115,10 @@ class NACCMaterial(HenckyElasticity):
     alpha_threshold: float = 0.0
 
     name: ClassVar[str] = "nacc"
+    code: ClassVar[int] = 1
     yaml_keys: ClassVar[tuple[str, ...]] = ("part", "model") + ELASTIC_KEYS + _NACC_KEYS
-    model_code: ClassVar[int] = MODEL_NACC
     parameter_columns: ClassVar[tuple[str, ...]] = ("beta", "xi", "M")
+    state_fields: ClassVar[tuple[str, ...]] = ("alpha",)
 
     def __post_init__(self) -> None:
         owner = type(self).__name__
@@ -170,14 +173,23 @@ class NACCMaterial(HenckyElasticity):
         return {"model": self.name, "E": self.E, "nu": self.nu, "density": self.density, "alpha0": self.alpha0,
                 "beta": self.beta, "xi": self.xi, "M": self.M, "alpha_threshold": self.alpha_threshold}
 
+    def parameters(self, cell_size: float | None) -> tuple[float, ...]:
+        """β, ξ, M (``parameter_columns``)."""
+        return (self.beta, self.xi, self.M)
+
+    @property
+    def fracture_threshold(self) -> float:
+        """α from which a particle counts as fractured (the flag latches)."""
+        return self.alpha_threshold
+
+    def initial_state(self, index: np.ndarray, rest_volume: np.ndarray, seed: int) -> np.ndarray:
+        """α0 for every particle."""
+        return np.full((len(index), 1), self.alpha0, dtype=np.float64)
+
     def partition_threshold(self, damage_dilation: float) -> float:
         """α from which the fragment partition treats a particle as damaged: cohesion gone
         (α >= ``alpha_threshold``) and the material opened by ``damage_dilation`` of its volume."""
         return self.alpha_threshold + damage_dilation
-
-    def pack(self, cell_size: float | None = None) -> list[float]:
-        """One row of the material table (``fracture_gs.materials.table.TABLE_COLUMNS``)."""
-        return self.elastic_row(MODEL_NACC) + [self.beta, self.xi, self.M, self.alpha_threshold]
 
     def return_map(self, F_trial: torch.Tensor, alpha: torch.Tensor
                    ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -187,11 +199,15 @@ class NACCMaterial(HenckyElasticity):
                               (self.mu, self.lam, self.bulk, self.beta, self.xi, self.M)))
         return F_E, alpha_new
 
-    @staticmethod
-    def update_rows(F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor, strength: torch.Tensor
-                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Torch twin of the kernels' update for particles of this model: (F_E, α', τ)."""
-        return nacc_update_reference(F_trial, state, *(rows[:, column] for column in range(1, 7)))
+    @classmethod
+    def update_rows(cls, F_trial: torch.Tensor, state: torch.Tensor, rows: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Torch twin of the kernels' update for particles of this model: (F_E, state with α', τ, 0)."""
+        F_E, alpha, tau = nacc_update_reference(F_trial, state[:, 0], rows[:, 1], rows[:, 2], rows[:, 3],
+                                                *(parameter(rows, cls, name) for name in cls.parameter_columns))
+        state_new = state.clone()
+        state_new[:, 0] = alpha
+        return F_E, state_new, tau, torch.zeros(len(F_trial), dtype=F_trial.dtype, device=F_trial.device)
 
     @staticmethod
     def energy_rows(F_E: torch.Tensor, state: torch.Tensor, rows: torch.Tensor) -> torch.Tensor:

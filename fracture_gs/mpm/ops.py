@@ -85,19 +85,20 @@ def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, frict
 
 def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,
                        mass_eps: float, split_gradient: float, grid: GridFields, backend: str = "auto",
-                       crack_normal: torch.Tensor | None = None, crack_scale: float = 0.0) -> torch.Tensor:
+                       split_direction: torch.Tensor | None = None, direction_scale: float = 0.0) -> torch.Tensor:
     """Fragments, step 2: every particle's damage gradient ∇D_p = Σ D_i ∇w_ip (returned, (N, 3)) and
     every node's reference key (``grid.reference``: the largest |∇D_p| reaching it, stored only where
     it reaches ``split_gradient`` (1/length), i.e. where it splits the node; 0 elsewhere). A particle
-    with a non-zero row of ``crack_normal`` (N, 3) takes ``crack_scale`` (1/length) times it instead
-    of its gradient (csrc/common/mpm_fragments.h, apply_crack_normal). ``geometry`` names the K
-    object grids; P2G must have run with ``damaged``."""
+    with a non-zero row of ``split_direction`` (N, 3; rows of unit column stride, e.g. 3 columns of
+    the state block) takes ``direction_scale`` (1/length) times it instead of its gradient
+    (csrc/common/mpm_fragments.h, apply_split_direction). ``geometry`` names the K object grids; P2G
+    must have run with ``damaged``."""
     if use_compiled(x.device, backend):
         return compiled_module().mpm_fragment_reference(bins.as_list(), x, grid_id, *geometry.args(), mass_eps,
                                                         split_gradient, grid.mass, grid.damage, grid.reference,
-                                                        crack_normal, crack_scale)
-    return reference.fragment_reference(x, grid_id, geometry, mass_eps, split_gradient, grid, crack_normal,
-                                        crack_scale)
+                                                        split_direction, direction_scale)
+    return reference.fragment_reference(x, grid_id, geometry, mass_eps, split_gradient, grid, split_direction,
+                                        direction_scale)
 
 
 def fragment_partition(bins: ParticleBins, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, stress: torch.Tensor,
@@ -143,30 +144,32 @@ def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields,
         reference.fragment_clear(keys, geometry, grid)
 
 
-def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor, grid_id: torch.Tensor,
-        material_id: torch.Tensor, material_table: torch.Tensor, grid: GridFields, geometry: GridGeometry,
-        dt: float, backend: str = "auto", fragments: FragmentFields | None = None,
-        strength: torch.Tensor | None = None, dissipated: torch.Tensor | None = None):
-    """Grid-to-particle transfer, advection and return map (``strength``: per-particle tensile strength
-    of brittle particles, None: the material table's; ``dissipated``: an (N,) float32 tensor that
-    receives the energy per unit rest volume each particle's brittle damage took, 0 elsewhere).
+def g2p(x: torch.Tensor, F_E: torch.Tensor, material_state: torch.Tensor, fractured: torch.Tensor,
+        grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor, grid: GridFields,
+        geometry: GridGeometry, dt: float, backend: str = "auto", fragments: FragmentFields | None = None,
+        dissipated: torch.Tensor | None = None):
+    """Grid-to-particle transfer, advection and the material update (``material_state``: the (N, S)
+    state block, or (N,) for one field; ``dissipated``: an (N,) float32 tensor that receives the energy per unit rest volume
+    each particle's update took).
 
     ``geometry`` names the object grids (K); with ``fragments`` the grid holds 2K fields and each
-    split node is read from the field of the particle's side. Returns (x, v, C, F_E, alpha, stress,
-    fractured, G2PStats) with new tensors.
+    split node is read from the field of the particle's side. Returns (x, v, C, F_E, material_state,
+    stress, fractured, G2PStats) with new tensors.
     """
     clamp_lower, clamp_upper = geometry.clamp_bounds()
     # Without fragments G2P reads the K object grids only (the tensors may hold fields B as well).
     velocity = grid.velocity if fragments is not None else grid.velocity[:geometry.n_grids]
+    block = material_state if material_state.ndim == 2 else material_state[:, None]  # (N,): one field
     if use_compiled(x.device, backend):
         n = x.shape[0]
         out = [torch.empty_like(x), torch.empty_like(x), torch.empty((n, 3, 3), device=x.device),
-               torch.empty_like(F_E), torch.empty_like(alpha), torch.empty((n, 3, 3), device=x.device),
+               torch.empty_like(F_E), torch.empty_like(block), torch.empty((n, 3, 3), device=x.device),
                torch.empty_like(fractured)]
         clamped, first_bad, max_speed = compiled_module().mpm_g2p(
-            x, F_E, alpha, fractured, grid_id, material_id, material_table, strength, velocity, *geometry.args(), dt,
+            x, F_E, block, fractured, grid_id, material_id, material_table, velocity, *geometry.args(), dt,
             clamp_lower, clamp_upper, *out, fragments.as_list() if fragments is not None else None,
             fragments.split_gradient if fragments is not None else 1.0, dissipated)
+        out[4] = out[4].reshape(material_state.shape)
         return (*out, G2PStats(int(clamped), int(first_bad), float(max_speed)))
-    return reference.g2p(x, F_E, alpha, fractured, grid_id, material_id, material_table, velocity,
-                         geometry, dt, clamp_lower, clamp_upper, fragments, strength, dissipated)
+    return reference.g2p(x, F_E, material_state, fractured, grid_id, material_id, material_table, velocity,
+                         geometry, dt, clamp_lower, clamp_upper, fragments, dissipated)

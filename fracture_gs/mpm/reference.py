@@ -10,7 +10,7 @@ import torch
 
 from fracture_gs.mpm.grid import (FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins, node_coords,
                                   node_index)
-from fracture_gs.materials import COLUMN, BrittleMaterial, constitutive_update_reference
+from fracture_gs.materials import COLUMN, constitutive_update_reference
 from fracture_gs.mpm.types import BLOCK
 
 # The 27 stencil offsets, in the order the kernels visit them (a, b, c nested).
@@ -125,13 +125,13 @@ def _norm_sq_bits(g: torch.Tensor) -> torch.Tensor:
 
 
 def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry, mass_eps: float,
-                       split_gradient: float, grid: GridFields, crack_normal: torch.Tensor | None = None,
-                       crack_scale: float = 0.0) -> torch.Tensor:
+                       split_gradient: float, grid: GridFields, split_direction: torch.Tensor | None = None,
+                       direction_scale: float = 0.0) -> torch.Tensor:
     """Damage gradients ∇D_p = Σ_i D_i ∇w_ip with D_i = damage_i / mass_i (returned, (N, 3)), and the
     reference key of every node: the maximum over the particles reaching it of
     (bits(|∇D_p|²) << 32) | p, counting only particles with |∇D_p| >= ``split_gradient`` (the keys
-    that split a node; 0 where none does). A particle with a non-zero row of ``crack_normal`` takes
-    ``crack_scale`` times it as its vector. ``geometry``: K object grids."""
+    that split a node; 0 where none does). A particle with a non-zero row of ``split_direction`` takes
+    ``direction_scale`` times it as its vector. ``geometry``: K object grids."""
     assert grid.damage is not None and grid.reference is not None, "fragments need damage fields"
     index, _, gradient, _ = _stencil(x, geometry)
     index = index + grid_id.long()[:, None] * geometry.nodes_per_grid
@@ -139,9 +139,9 @@ def fragment_reference(x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeo
     node_damage = torch.where(node_mass > mass_eps, grid.damage.reshape(-1)[index] / torch.where(
         node_mass > mass_eps, node_mass, torch.ones_like(node_mass)), torch.zeros_like(node_mass))
     damage_gradient = (node_damage[..., None] * gradient).sum(1)
-    if crack_normal is not None:
-        cracked = (crack_normal != 0).any(1)
-        damage_gradient = torch.where(cracked[:, None], (crack_scale * crack_normal).to(damage_gradient.dtype),
+    if split_direction is not None:
+        cracked = (split_direction != 0).any(1)
+        damage_gradient = torch.where(cracked[:, None], (direction_scale * split_direction).to(damage_gradient.dtype),
                                       damage_gradient)
     particle = torch.arange(x.shape[0], device=x.device, dtype=torch.int64)
     key = (_norm_sq_bits(damage_gradient) << 32) | particle
@@ -319,15 +319,16 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
             grid.velocity[b] = vb - impulse / torch.where(active, mb, torch.ones_like(mb))[:, None]
 
 
-def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torch.Tensor,
+def g2p(x: torch.Tensor, F_E: torch.Tensor, material_state: torch.Tensor, fractured: torch.Tensor,
         grid_id: torch.Tensor, material_id: torch.Tensor, material_table: torch.Tensor,
         grid_velocity: torch.Tensor, geometry: GridGeometry, dt: float,
         clamp_lower: list[float], clamp_upper: list[float], fragments: FragmentFields | None = None,
-        strength: torch.Tensor | None = None, dissipated: torch.Tensor | None = None):
-    """Gather velocity and APIC affine field, advect, update F and run the return map. With
-    ``fragments``, each split node's velocity comes from the field of the particle's side there.
+        dissipated: torch.Tensor | None = None):
+    """Gather velocity and APIC affine field, advect, update F and run the material update
+    (``material_state``: the (N, S) block, or (N,) for one field). With ``fragments``, each split
+    node's velocity comes from the field of the particle's side there.
 
-    Returns (x, v, C, F_E, alpha, stress, fractured, G2PStats).
+    Returns (x, v, C, F_E, material_state, stress, fractured, G2PStats).
     """
     index, weight, _, dpos = _stencil(x, geometry)
     if fragments is None:
@@ -347,22 +348,15 @@ def g2p(x: torch.Tensor, F_E: torch.Tensor, alpha: torch.Tensor, fractured: torc
     clamped = int((x_new != moved).any(1).sum())
     eye = torch.eye(3, device=x.device, dtype=x.dtype)
     F_trial = (eye + dt * C) @ F_E
-    F_new, alpha_new, stress = constitutive_update_reference(material_table, material_id, F_trial, alpha, strength)
-    if dissipated is not None:   # (g(d_old) − g(d_new)) ψ⁺ of the brittle particles, 0 elsewhere
-        rows = material_table[material_id.long()].to(F_trial.dtype)
-        brittle = rows[:, COLUMN["model"]] == BrittleMaterial.model_code
-        taken = torch.zeros(len(x), dtype=F_trial.dtype, device=x.device)
-        if bool(brittle.any()):
-            residual = rows[brittle, COLUMN["residual"]]
-            old, new = alpha[brittle].to(F_trial.dtype), alpha_new[brittle]
-            drop = ((1.0 - old) ** 2 - (1.0 - new) ** 2) * (1.0 - residual)
-            taken[brittle] = drop * BrittleMaterial.tensile_energy_rows(F_new[brittle], rows[brittle])
+    F_new, state_new, stress, taken = constitutive_update_reference(material_table, material_id, F_trial,
+                                                                    material_state)
+    if dissipated is not None:
         dissipated.copy_(taken)
     threshold = material_table[material_id.long(), COLUMN["fracture_threshold"]]
-    fractured_new = fractured | (alpha_new >= threshold)
+    fractured_new = fractured | (state_new.reshape(len(x), -1)[:, 0] >= threshold)
     finite = (torch.isfinite(x_new).all(1) & torch.isfinite(v).all(1) & torch.isfinite(F_new).flatten(1).all(1))
     bad = torch.nonzero(~finite).flatten()
     speed = v[finite].norm(dim=1)
     stats = G2PStats(clamped=clamped, first_nonfinite=int(bad[0]) if len(bad) else -1,
                      max_speed=float(speed.max()) if len(speed) else 0.0)
-    return x_new, v, C, F_new, alpha_new, stress, fractured_new, stats
+    return x_new, v, C, F_new, state_new.to(material_state.dtype), stress, fractured_new, stats

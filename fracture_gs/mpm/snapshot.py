@@ -2,7 +2,7 @@
 solver's particles and state."""
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 import torch
@@ -12,19 +12,19 @@ from fracture_gs.mpm.types import ParticleSet, SimState
 
 
 def frame_arrays(state: SimState, fragment_id: torch.Tensor | None = None,
-                 damage: torch.Tensor | None = None) -> dict[str, np.ndarray]:
+                 fields: Mapping[str, torch.Tensor] | None = None) -> dict[str, np.ndarray]:
     """The per-frame arrays from a solver state (float32, fractured bool), plus ``fragment_id``
-    (int32 connected piece of every particle) and ``damage`` (float32 brittle damage, 0 for other
-    models) when given."""
+    (int32 connected piece of every particle) and the material state ``fields`` (float32 (N,) each,
+    e.g. ``damage``: :meth:`fracture_gs.materials.MaterialTable.frame_fields`) when given."""
     def array(t: torch.Tensor, dtype: Any) -> np.ndarray:
-        return t.detach().cpu().numpy().astype(dtype, copy=False)
+        return np.ascontiguousarray(t.detach().cpu().numpy().astype(dtype, copy=False))
 
     arrays = {name: array(getattr(state, name), np.bool_ if name == "fractured" else np.float32)
               for name in FRAME_ARRAYS}
     if fragment_id is not None:
         arrays["fragment_id"] = array(fragment_id, np.int32)
-    if damage is not None:
-        arrays["damage"] = array(damage, np.float32)
+    for name, values in (fields or {}).items():
+        arrays[name] = array(values, np.float32)
     return arrays
 
 

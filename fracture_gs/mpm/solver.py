@@ -19,18 +19,16 @@ from fracture_gs.mpm import ops
 from fracture_gs.mpm.fragments import count_fragments, fragment_ids, object_link_radii
 from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
-from fracture_gs.materials import COLUMN, MaterialTable, elastic_energy, particle_strengths
+from fracture_gs.materials import COLUMN, MaterialTable, SubstepView, elastic_energy
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
 
-STATE_KEYS = ("x", "v", "C", "F_E", "alpha", "fractured", "stress")
-# A cracked particle's crack normal outranks damage gradients as a node reference: its reference vector
-# is the normal times this many 1/cells (split nodes need split_gradient, 0.25 per cell by default).
-CRACK_REFERENCE_CELLS = 4.0
-# Crack normals are oriented so that their dot product with this direction is positive: the particles
-# of one crack plane share one orientation (and one side of the partition), whatever their order.
-_CRACK_ORIENTATION = (0.2672612419124244, 0.5345224838248488, 0.8017837257372732)
+STATE_KEYS = ("x", "v", "C", "F_E", "material_state", "fractured", "stress")
+# A particle's split direction (fracture_gs.materials.MaterialTable.split_directions) outranks damage
+# gradients as a node reference: its reference vector is the direction times this many 1/cells
+# (split nodes need split_gradient, 0.25 per cell by default).
+SPLIT_DIRECTION_CELLS = 4.0
 
 
 class CollisionMPM:
@@ -71,6 +69,7 @@ class CollisionMPM:
         self._parse_boundaries(boundaries)
 
         table = MaterialTable(self.materials, cell_size=domain.dx)
+        self.table = table
         self.material_table = table.table(self.device)
         self.max_wave_speed = float(table.max_wave_speed)
         if int(self.particles.material_id.max()) >= len(self.materials) or int(self.particles.material_id.min()) < 0:
@@ -91,22 +90,18 @@ class CollisionMPM:
                                      with_fragments=self.fragments)
         self._split_particle: torch.Tensor | None = None  # (N) 1: read a split node in the latest substep
         self._damage_started = False  # some particle's fracture flag is set (flags latch: stays True)
-        # State from which a particle of each material counts as damaged for the partition (inf: never):
-        # NACC's α past its threshold plus the dilation, the brittle damage when complete.
+        # State field 0 from which a particle of each material counts as damaged for the partition (inf:
+        # never), and from which it is a piece of its own (inf: never).
         self.damage_alpha = table.partition_thresholds(self.contact.damage_dilation, self.device)
-        # Brittle materials: per-particle Weibull strengths (constructor order, then the solver's), the
-        # material mask, and the energy damage has taken (float64, total and per object).
+        self.piece_threshold = table.piece_thresholds(self.device)
         self.seed = int(seed)
-        self.input_strength = particle_strengths(self.materials, self.particles.material_id,
-                                                 self.particles.rest_volume, self.seed)
-        self.strength = self.input_strength
-        self.brittle_material = table.is_brittle(self.device)
-        self.has_brittle = bool(self.brittle_material.any())
-        self.fracture_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
-        # Normal of the crack plane of every brittle particle with complete damage (0 elsewhere), solver order.
-        self.crack_normal = (torch.zeros(len(self.particles), 3, device=self.device) if self.has_brittle else None)
-        self._cracked: torch.Tensor | None = None   # rows with a crack normal (cache; None: to be found)
-        self._brittle_particle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
+        # The models of the scene with their materials, whether any of them dissipates energy, and the
+        # energy their updates have dissipated (float64, per object).
+        self._models = table.models()
+        self._dissipates = any(cls.dissipates for cls, _ in self._models)
+        self.dissipated_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+        self._model_particles: dict[type, torch.Tensor] = {}   # per model: bool (N,) in the current order
+        self._model_cache: dict[type, dict] = {}               # per model: its after_substep cache
         self.fragment_radius = object_link_radii(self.particles.rest_volume, self.particles.obj_id, self.n_objects)
         self._fragment_cache: tuple[int, torch.Tensor] | None = None  # (step, labels in input order)
         self.max_contact_gap = self.contact.max_gap * self.geometry.dx  # a length (inf: no check)
@@ -114,7 +109,7 @@ class CollisionMPM:
         self.external_impulse = ExternalImpulse(self.field_geometry, self.wall_condition, self.ground_height,
                                                 self.gravity, float(self.particles.mass.double().sum()),
                                                 self.device)
-        self.state = self._initial_state(table)
+        self.state = self._initial_state()
         # Bins of the latest substep (diagnostics; `order` indexes the particle order of that substep).
         self.last_bins: ParticleBins | None = None
         self.max_speed = float(self.state.v.norm(dim=1).max()) if len(self.particles) else 0.0
@@ -139,14 +134,15 @@ class CollisionMPM:
             return particles.obj_id.to(torch.int32).contiguous()
         return torch.zeros_like(particles.obj_id, dtype=torch.int32)
 
-    def _initial_state(self, table: MaterialTable) -> SimState:
+    def _initial_state(self) -> SimState:
         n = len(self.particles)
         eye = torch.eye(3, device=self.device).expand(n, 3, 3).contiguous()
-        alpha = table.initial_alpha(self.particles.material_id).contiguous()
+        material_state = self.table.initial_state(self.particles.material_id, self.particles.rest_volume,
+                                                  self.seed).contiguous()
         threshold = self.material_table[self.particles.material_id.long(), COLUMN["fracture_threshold"]]
         state = SimState(x=self.particles.x.float().contiguous(), v=self.particles.v.float().contiguous(),
-                         C=torch.zeros(n, 3, 3, device=self.device), F_E=eye, alpha=alpha,
-                         fractured=(alpha >= threshold).contiguous())
+                         C=torch.zeros(n, 3, 3, device=self.device), F_E=eye, material_state=material_state,
+                         fractured=(material_state[:, 0] >= threshold).contiguous())
         self.stress = torch.zeros(n, 3, 3, device=self.device)
         return state
 
@@ -199,17 +195,20 @@ class CollisionMPM:
         self.external_impulse.step(field_bins.touched, g, dt, lambda: ops.boundaries(
             field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps, g,
             backend))
-        dissipated = torch.empty_like(s.alpha) if self.has_brittle else None
-        x, v, C, F_E, alpha, stress, fractured, stats = ops.g2p(
-            s.x, s.F_E, s.alpha, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt, backend,
-            fragments=fragments, strength=self.strength, dissipated=dissipated)
+        dissipated = torch.empty(len(p), device=self.device) if self._dissipates else None
+        x, v, C, F_E, material_state, stress, fractured, stats = ops.g2p(
+            s.x, s.F_E, s.material_state, s.fractured, self.grid_id, p.material_id, self.material_table, g, geo, dt,
+            backend, fragments=fragments, dissipated=dissipated)
         if fragments is not None:  # fields B are zero again for the next substep
             ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
         self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
-        if self.has_brittle:
-            self._brittle_substep(s.alpha, alpha, F_E, C, dissipated, dt)
-        self.state = SimState(x=x, v=v, C=C, F_E=F_E, alpha=alpha, fractured=fractured,
+        if dissipated is not None:
+            self._add_dissipated(dissipated)
+        for cls, _ in self._models:
+            cls.after_substep(SubstepView(state_old=s.material_state, state=material_state, F_E=F_E, C=C, dt=dt,
+                                          mine=self._particles_of(cls), cache=self._model_cache.setdefault(cls, {})))
+        self.state = SimState(x=x, v=v, C=C, F_E=F_E, material_state=material_state, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
         self.last_bins = bins
@@ -224,9 +223,10 @@ class CollisionMPM:
         passes use (touched: plus the fields B of split blocks; contact: plus the split blocks) and
         what G2P needs, or (bins, None) where no node is split."""
         p, s, g, geo = self.particles, self.state, self.grid, self.geometry
+        directions = self.table.split_directions(s.material_state, p.material_id)
         damage_gradient = ops.fragment_reference(bins, s.x, self.grid_id, geo, self.mass_eps, self.split_gradient, g,
-                                                 self.backend, crack_normal=self.crack_normal,
-                                                 crack_scale=CRACK_REFERENCE_CELLS / geo.dx)
+                                                 self.backend, split_direction=directions,
+                                                 direction_scale=SPLIT_DIRECTION_CELLS / geo.dx)
         split_particle, split_keys, side_mask = ops.fragment_partition(
             bins, s.x, s.v, s.C, self.stress, p.mass, p.rest_volume, self.grid_id, geo, dt, damage_gradient,
             self.split_gradient, g, self.backend)
@@ -237,36 +237,23 @@ class CollisionMPM:
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
                                           self.split_gradient, side_mask.contiguous())
 
-    def _brittle_substep(self, damage_old: torch.Tensor, damage_new: torch.Tensor, F_E: torch.Tensor,
-                         C: torch.Tensor, dissipated: torch.Tensor, dt: float) -> None:
-        """What a substep did to the brittle particles: the energy their damage took (``dissipated``,
-        per unit rest volume, from G2P: (g(d_old) − g(d_new)) ψ⁺(F_E); the elastic energy g ψ⁺ + ψ⁻
-        loses exactly that), added to ``fracture_energy`` per object; and their crack planes. A new
-        crack's normal is the direction of the particle's largest principal stretch (of its largest
-        principal stress, Rankine) when its damage becomes complete; afterwards the normal is carried
-        with the material like the normal of a material plane, n ← (I − dt Cᵀ) n, normalised."""
-        assert self.crack_normal is not None
-        if self._cracked is None:   # rows with a crack normal, in the current particle order
-            self._cracked = torch.nonzero((self.crack_normal != 0).any(1)).flatten()
-        if len(self._cracked):
-            normal = self.crack_normal[self._cracked]
-            normal = normal - dt * (C[self._cracked].mT @ normal[:, :, None])[:, :, 0]
-            self.crack_normal[self._cracked] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
-        grew = torch.nonzero(self._brittle_particle & (damage_new > damage_old)).flatten()
-        if len(grew) == 0:
+    def _add_dissipated(self, dissipated: torch.Tensor) -> None:
+        """Adds what the substep's updates dissipated (energy per unit rest volume, per particle) times
+        the particles' rest volumes to ``dissipated_energy``, per object."""
+        taken = torch.nonzero(dissipated).flatten()
+        if len(taken) == 0:
             return
         p = self.particles
-        energy = dissipated[grew].double() * p.rest_volume[grew].double()
-        self.fracture_energy.index_add_(0, p.obj_id[grew].long(), energy)
-        cracked_now = grew[damage_new[grew] >= 1.0]   # grew to 1 in this substep (it was below 1 before)
-        if len(cracked_now):
-            F = F_E[cracked_now].double()
-            _, vectors = torch.linalg.eigh(F @ F.mT)
-            normal = vectors[:, :, -1]
-            orientation = torch.tensor(_CRACK_ORIENTATION, dtype=normal.dtype, device=normal.device)
-            sign = torch.where(normal @ orientation < 0, -1.0, 1.0).to(normal.dtype)
-            self.crack_normal[cracked_now] = (normal * sign[:, None]).float()
-            self._cracked = torch.cat([self._cracked, cracked_now])
+        energy = dissipated[taken].double() * p.rest_volume[taken].double()
+        self.dissipated_energy.index_add_(0, p.obj_id[taken].long(), energy)
+
+    def _particles_of(self, cls: type) -> torch.Tensor:
+        """(N) bool, current order: the particles whose material's model is ``cls``."""
+        if cls not in self._model_particles:
+            rows = next(rows for model, rows in self._models if model is cls)
+            ids = torch.tensor(rows, dtype=self.particles.material_id.dtype, device=self.device)
+            self._model_particles[cls] = torch.isin(self.particles.material_id, ids)
+        return self._model_particles[cls]
 
     def reorder(self) -> None:
         """Sort the particles by object, grid block and cell again (faster transfers).
@@ -282,12 +269,8 @@ class CollisionMPM:
         self.state = self.state.take(order)
         self.grid_id = torch.index_select(self.grid_id, 0, order)
         self.stress = torch.index_select(self.stress, 0, order)
-        if self.strength is not None:
-            self.strength = torch.index_select(self.strength, 0, order)
-        if self.crack_normal is not None:
-            self.crack_normal = torch.index_select(self.crack_normal, 0, order)
-        self._brittle_particle = torch.index_select(self._brittle_particle, 0, order)
-        self._cracked = None
+        self._model_particles = {}
+        self._model_cache = {}
         self.input_index = torch.index_select(self.input_index, 0, order)
 
     def state_in_input_order(self) -> SimState:
@@ -296,19 +279,21 @@ class CollisionMPM:
         where[self.input_index] = torch.arange(len(where), device=where.device)
         return self.state.take(where)
 
-    def damage_in_input_order(self) -> torch.Tensor:
-        """(N,) float32 damage d of every particle in the constructor's order: the state of brittle
-        particles, 0 for the other models."""
-        state = self.state_in_input_order()
-        brittle = torch.index_select(self.brittle_material, 0, self.input_particles.material_id)
-        return torch.where(brittle, state.alpha, torch.zeros_like(state.alpha))
+    def frame_fields_in_input_order(self) -> dict[str, torch.Tensor]:
+        """The material state fields every frame holds (``MaterialTable.frame_fields``, e.g. the
+        brittle ``damage``), (N,) float32 each, in the constructor's order."""
+        return self.table.frame_fields(self.state_in_input_order().material_state, self.input_particles.material_id)
 
     def fragment_ids(self) -> torch.Tensor:
         """(N,) int64 fragment label of every particle, rows in the constructor's order (connected
-        pieces of each object, :mod:`fracture_gs.mpm.fragments`; brittle particles with complete
-        damage are pieces of their own); cached per substep."""
+        pieces of each object, :mod:`fracture_gs.mpm.fragments`; particles whose state field 0 has
+        reached their material's piece threshold, e.g. brittle particles with complete damage, are pieces
+        of their own); cached per substep."""
         if self._fragment_cache is None or self._fragment_cache[0] != self.state.step:
-            broken = self.damage_in_input_order() >= 1.0 if self.has_brittle else None
+            broken = None
+            if bool(torch.isfinite(self.piece_threshold).any()):
+                threshold = torch.index_select(self.piece_threshold, 0, self.input_particles.material_id)
+                broken = self.state_in_input_order().alpha >= threshold
             labels = fragment_ids(self.state_in_input_order().x, self.input_particles.obj_id, self.fragment_radius,
                                   backend=self.backend, broken=broken)
             self._fragment_cache = (self.state.step, labels)
@@ -353,7 +338,8 @@ class CollisionMPM:
         mass = p.mass.double()
         v = s.v.double()
         kinetic = 0.5 * mass * (v * v).sum(1)
-        psi = elastic_energy(s.F_E, self.material_table, p.material_id, backend=self.backend, alpha=s.alpha).double()
+        psi = elastic_energy(s.F_E, self.material_table, p.material_id, backend=self.backend,
+                             state=s.material_state).double()
         elastic = psi * p.rest_volume.double()
         gravity = torch.tensor(self.gravity, device=self.device, dtype=torch.float64)
         reference_height = torch.tensor(self._potential_origin(), device=self.device, dtype=torch.float64)
@@ -367,20 +353,20 @@ class CollisionMPM:
 
         mom_obj, kin_obj, ela_obj, grav_obj = (per_object(t).cpu().numpy()
                                                for t in (momentum, kinetic, elastic, gravitational))
-        fracture_obj = self.fracture_energy.cpu().numpy()
+        dissipated_obj = self.dissipated_energy.cpu().numpy()
         return {
             "momentum": momentum.sum(0).cpu().numpy(),
             "kinetic": float(kinetic.sum()),
             "elastic": float(elastic.sum()),
             "gravitational": float(gravitational.sum()),
             "total_energy": float(kinetic.sum() + elastic.sum() + gravitational.sum()),
-            "fracture_energy": float(fracture_obj.sum()),
+            "dissipated_energy": float(dissipated_obj.sum()),
             "fractured": int(s.fractured.sum()),
             "fragments": count_fragments(self.fragment_ids(), self.input_particles.obj_id),
             "external_impulse": self.external_impulse.state(),
             "per_object": [{"name": self.object_names[k], "momentum": mom_obj[k], "kinetic": float(kin_obj[k]),
                             "elastic": float(ela_obj[k]), "gravitational": float(grav_obj[k]),
-                            "fracture_energy": float(fracture_obj[k])}
+                            "dissipated_energy": float(dissipated_obj[k])}
                            for k in range(self.n_objects)],
         }
 
@@ -405,9 +391,7 @@ class CollisionMPM:
         out["step"] = np.int64(self.state.step)
         out["max_speed"] = np.float64(self.max_speed)
         out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
-        out["fracture_energy"] = self.fracture_energy.cpu().numpy()
-        if self.crack_normal is not None:
-            out["crack_normal"] = self.crack_normal.cpu().numpy()
+        out["dissipated_energy"] = self.dissipated_energy.cpu().numpy()
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -428,14 +412,18 @@ class CollisionMPM:
             if order.shape != (n,) or not torch.equal(torch.sort(order).values, torch.arange(n, device=self.device)):
                 raise ValueError("checkpoint 'input_index' is not a permutation of the scene's particles")
         self.particles = self.input_particles.take(order)
-        self.strength = torch.index_select(self.input_strength, 0, order) if self.input_strength is not None else None
-        self._brittle_particle = torch.index_select(self.brittle_material, 0, self.particles.material_id)
-        self._cracked = None
+        self._model_particles = {}
+        self._model_cache = {}
         self.grid_id = self._grid_ids(self.particles)
         self.input_index = order
         self.stress = tensors.pop("stress").float()
+        material_state = tensors["material_state"].float()
+        width = self.table.state_width
+        if material_state.shape != (n, width):
+            raise ValueError(f"checkpoint 'material_state' has shape {tuple(material_state.shape)}, the scene's "
+                             f"materials have ({n}, {width})")
         self.state = SimState(x=tensors["x"].float(), v=tensors["v"].float(), C=tensors["C"].float(),
-                              F_E=tensors["F_E"].float(), alpha=tensors["alpha"].float(),
+                              F_E=tensors["F_E"].float(), material_state=material_state.contiguous(),
                               fractured=tensors["fractured"].bool(), time=float(data["time"]),
                               step=int(data["step"]))
         self._damage_started = False
@@ -447,15 +435,10 @@ class CollisionMPM:
         self.external_impulse.load([float(v) for v in np.asarray(data["external_impulse"]).reshape(3)]
                                    if "external_impulse" in data else None)
         self._fragment_cache = None  # labels belong to the state they were computed from
-        fracture = np.asarray(data["fracture_energy"], dtype=np.float64) if "fracture_energy" in data \
-            else np.zeros(self.n_objects)
-        if fracture.shape != (self.n_objects,):
-            raise ValueError(f"checkpoint 'fracture_energy' has shape {fracture.shape}, the scene has "
+        if "dissipated_energy" not in data:
+            raise KeyError("checkpoint has no 'dissipated_energy'")
+        dissipated = np.asarray(data["dissipated_energy"], dtype=np.float64)
+        if dissipated.shape != (self.n_objects,):
+            raise ValueError(f"checkpoint 'dissipated_energy' has shape {dissipated.shape}, the scene has "
                              f"{self.n_objects} objects")
-        self.fracture_energy = torch.as_tensor(fracture, dtype=torch.float64, device=self.device)
-        if self.crack_normal is not None:
-            normals = np.asarray(data["crack_normal"], dtype=np.float32) if "crack_normal" in data \
-                else np.zeros((n, 3), dtype=np.float32)
-            if normals.shape != (n, 3):
-                raise ValueError(f"checkpoint 'crack_normal' has shape {normals.shape}, expected ({n}, 3)")
-            self.crack_normal = torch.as_tensor(normals, device=self.device).contiguous()
+        self.dissipated_energy = torch.as_tensor(dissipated, dtype=torch.float64, device=self.device)

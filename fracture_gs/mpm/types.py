@@ -143,21 +143,27 @@ class ParticleSet:
 class SimState:
     """Evolving per-particle state plus the clock."""
 
-    x: torch.Tensor          # (N,3)
-    v: torch.Tensor          # (N,3)
-    C: torch.Tensor          # (N,3,3) APIC affine velocity
-    F_E: torch.Tensor        # (N,3,3) elastic deformation gradient
-    alpha: torch.Tensor      # (N,) NACC hardening state
-    fractured: torch.Tensor  # (N,) bool, latched
+    x: torch.Tensor               # (N,3)
+    v: torch.Tensor               # (N,3)
+    C: torch.Tensor               # (N,3,3) APIC affine velocity
+    F_E: torch.Tensor             # (N,3,3) elastic deformation gradient
+    material_state: torch.Tensor  # (N,S) the material models' state (fracture_gs.materials.model)
+    fractured: torch.Tensor       # (N,) bool, latched
     time: float = 0.0
     step: int = 0
+
+    @property
+    def alpha(self) -> torch.Tensor:
+        """(N,) state field 0 of every particle: NACC's α, the brittle damage (the frames' ``alpha``)."""
+        return self.material_state[:, 0]
 
     def take(self, index: torch.Tensor) -> "SimState":
         """The particles at ``index`` (a permutation reorders them), same clock."""
         def rows(t: torch.Tensor) -> torch.Tensor:
             return torch.index_select(t, 0, index)
         return SimState(x=rows(self.x), v=rows(self.v), C=rows(self.C), F_E=rows(self.F_E),
-                        alpha=rows(self.alpha), fractured=rows(self.fractured), time=self.time, step=self.step)
+                        material_state=rows(self.material_state), fractured=rows(self.fractured), time=self.time,
+                        step=self.step)
 
 
 @dataclass

@@ -51,7 +51,7 @@ class RunSummary:
     fractured: int
     particles: int
     clamped: int                 # particles clamped into the domain, summed over frames
-    fracture_energy: float = 0.0  # energy brittle damage took by the last frame
+    dissipated_energy: float = 0.0  # energy the material updates (brittle damage) dissipated by the last frame
 
 
 class InvalidInput(ValueError):
@@ -167,9 +167,9 @@ def _print_summary(summary: RunSummary, stream: TextIO) -> None:
         f"  energy change  {summary.energy_start:.6g} -> {summary.energy_end:.6g} "
         f"({d_energy:+.4g}, {rel_e:+.2%})",
     ]
-    if summary.fracture_energy > 0:
-        balance = summary.energy_end + summary.fracture_energy - summary.energy_start
-        lines.append(f"  fracture energy {summary.fracture_energy:.4g} taken by damage (energy + fracture energy: "
+    if summary.dissipated_energy > 0:
+        balance = summary.energy_end + summary.dissipated_energy - summary.energy_start
+        lines.append(f"  dissipated     {summary.dissipated_energy:.4g} taken by damage (energy + dissipated: "
                      f"{balance:+.4g}, {balance / abs(summary.energy_start) if summary.energy_start else float('nan'):+.2%})")
     lines += [
         f"  fractured      {summary.fractured / max(summary.particles, 1):.2%} "
@@ -214,7 +214,7 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
 def _frame_arrays(solver: Any) -> dict[str, np.ndarray]:
     """The arrays of the solver's current frame, in the particles' input order."""
     return frame_arrays(solver.state_in_input_order(), solver.fragment_ids(),
-                        solver.damage_in_input_order())
+                        solver.frame_fields_in_input_order())
 
 
 def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int,
@@ -238,7 +238,7 @@ def _summarise(output: SimulationOutput, n_particles: int, first: int, done: int
         external_impulse=float(np.linalg.norm(impulse)),
         energy_start=float(col["total_energy"][0]), energy_end=float(col["total_energy"][-1]),
         fractured=int(col["fractured"][-1]), particles=n_particles, clamped=clamped,
-        fracture_energy=float(col["fracture_energy"][-1]) if "fracture_energy" in col else 0.0)
+        dissipated_energy=float(col["dissipated_energy"][-1]) if "dissipated_energy" in col else 0.0)
 
 
 def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.device,

@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks"), str(ROOT / "tests")]  # the package, bench_fragments.py, fragment_scenes.py
+sys.path[:0] = [str(ROOT), str(ROOT / "benchmarks")]  # the package and bench_fragments.py
 
 import matplotlib
 
@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench_fragments import BLOCKS, PIECE_SHARE  # noqa: E402
-from fragment_scenes import block_drop  # noqa: E402
+from fracture_gs.testing.fragment_scenes import block_drop  # noqa: E402
 from fracture_gs.mpm.fragments import fragment_sizes  # noqa: E402
 from fracture_gs.io.atomic import atomic_write  # noqa: E402
 from fragment_strip import fragment_colours  # noqa: E402

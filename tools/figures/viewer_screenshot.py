@@ -16,13 +16,13 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path[:0] = [str(ROOT), str(ROOT / "tests")]  # the package and headless_browser.py
+sys.path.insert(0, str(ROOT))  # the package
 
 import numpy as np
 import torch
 
 from fracture_gs.viewer.app import Viewer, ViewerOptions
-from headless_browser import HeadlessBrowser, find_chromium, wait_for
+from fracture_gs.testing.headless_browser import HeadlessBrowser, find_chromium, wait_for
 from fracture_gs.viewer.sources import SimulationSource
 
 

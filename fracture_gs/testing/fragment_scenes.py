@@ -18,12 +18,12 @@ import torch
 
 from fracture_gs.config.scene import PrimitiveConfig
 
-from lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
-from fracture_gs.materials import ElasticMaterial, NACCMaterial
+from fracture_gs.materials import MaterialModel, material_from_yaml
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.scene import sample_primitive
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import SPLIT_GRADIENT_CELLS, ContactSettings, Domain, GroundBoundary
+from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 
 GROUND_HEIGHT = 0.1
 
@@ -35,6 +35,12 @@ def jittered_box(centre: Sequence[float], size: float, dx: float, seed: int) -> 
     primitive = PrimitiveConfig(shape="box", size=(size, size, size), particles_per_cell=8)
     local = sample_primitive(primitive, dx, 1.0, np.random.default_rng([seed, 0]))
     return torch.from_numpy(local.x + np.asarray(centre, np.float64)).float()
+
+
+def soil(E: float, density: float, alpha0: float, beta: float) -> MaterialModel:
+    """The NACC material of these scenes (ν 0.3, ξ 1, M 2.36), as a scene's material mapping names it."""
+    return material_from_yaml({"model": "nacc", "E": E, "nu": 0.3, "density": density, "alpha0": alpha0,
+                               "beta": beta, "xi": 1.0, "M": 2.36}, "soil")
 
 
 def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, beta: float = 0.5,
@@ -51,8 +57,8 @@ def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, 
     centre = (0.5, 0.5, GROUND_HEIGHT + size / 2 + spacing / 2)
     block = (lattice_box(centre, (size, size, size), spacing) if jitter_seed is None else
              jittered_box(centre, size, domain.dx, jitter_seed))
-    material = (ElasticMaterial(E=E, nu=0.3, density=density) if alpha0 is None else
-                NACCMaterial(E=E, nu=0.3, density=density, alpha0=alpha0, beta=beta, xi=1.0, M=2.36))
+    material = (soil(E, density, alpha0, beta) if alpha0 is not None else
+                material_from_yaml({"model": "elastic", "E": E, "nu": 0.3, "density": density}, "block"))
     particles = particle_set([LatticeBody(block, (0.0, 0.0, -speed), 0, spacing)], [material.density])
     particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
     return CollisionMPM(particles, [material], domain,
@@ -75,8 +81,8 @@ def precracked_bar(*, grid: int = 64, length: float = 0.4, width: float = 0.1, s
     bar = lattice_box((centre, 0.5, 0.5), (layers * spacing, width, width), spacing)
     offset = bar[:, 0] - centre
     half = torch.where(offset.abs() < 0.25 * spacing, 0, torch.where(offset < 0, -1, 1)).to(torch.int32)
-    strong = NACCMaterial(E=1e5, nu=0.3, density=1e3, alpha0=-5.0, beta=0.3, xi=1.0, M=2.36)
-    cracked = NACCMaterial(E=1e5, nu=0.3, density=1e3, alpha0=0.5, beta=0.3, xi=1.0, M=2.36)
+    strong = soil(1e5, 1e3, -5.0, 0.3)
+    cracked = soil(1e5, 1e3, 0.5, 0.3)
     particles = particle_set([LatticeBody(bar, (0.0, 0.0, 0.0), 0, spacing)], [strong.density])
     velocity = torch.zeros_like(particles.v)
     velocity[:, 0] = speed * half.float()
@@ -92,7 +98,7 @@ def colliding_spheres(*, grid: int = 32, radius: float = 0.12, fragments: bool =
     """Two weak NACC spheres (α0 = −0.01) colliding off-centre at 3 m/s relative, no gravity or walls."""
     domain = Domain((0, 0, 0), (1, 1, 1), grid)
     spacing = domain.dx / 2
-    material = NACCMaterial(E=2e4, nu=0.3, density=2.0, alpha0=-0.01, beta=0.5, xi=1.0, M=2.36)
+    material = soil(2e4, 2.0, -0.01, 0.5)
     bodies = [LatticeBody(lattice_sphere((0.5 - radius - spacing, 0.5, 0.5), radius, spacing), (2.0, 0.0, 0.3), 0,
                           spacing),
               LatticeBody(lattice_sphere((0.5 + radius + spacing, 0.52, 0.5), radius, spacing), (-1.0, 0.2, 0.0), 0,
