@@ -5,7 +5,7 @@ identifiers, per model. A model is meant to live in its class, its law header an
 
 Identifiers only: names in Python code (``tokenize``), and in C++ once comments and string literals
 are stripped; words in comments and docstrings do not count. A model's identifiers are the names with
-its own name as a word in them (``BrittleMaterial``, ``kModelNacc``, ``is_nacc``)
+its own name as a word in them (``BrittleMaterial``, ``kModelNacc``, ``is_nacc``, ``VonMisesModel``)
 and, for the brittle model, ``crack_normal`` and ``particle_strength``.
 
     python tools/material_footprint.py            # prints JSON: per model, its file count and files
@@ -28,6 +28,7 @@ LIMIT = 4
 PATTERNS = {
     "brittle": (r"(?:^|_)brittle|Brittle|BRITTLE", r"crack_normal", r"particle_strength"),
     "nacc": (r"(?:^|_)nacc|Nacc|NACC",),
+    "von_mises": (r"(?:^|_)von_?mises|VonMises|VON_MISES",),
 }
 
 

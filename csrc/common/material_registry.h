@@ -6,6 +6,7 @@
 #include "common/materials/brittle.h"
 #include "common/materials/elastic.h"
 #include "common/materials/nacc.h"
+#include "common/materials/von_mises.h"
 
 namespace fgs {
 
@@ -86,7 +87,8 @@ struct ModelList {
 using MaterialModels = ModelList<
     ElasticModel,
     NaccModel,
-    BrittleModel>;
+    BrittleModel,
+    VonMisesModel>;
 
 constexpr int kMaxStateFields = MaterialModels::kMaxStateFields;
 

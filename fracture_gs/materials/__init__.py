@@ -21,6 +21,7 @@ from fracture_gs.materials.elastic import ElasticMaterial
 from fracture_gs.materials.nacc import (P0_FLOOR, YIELD_TOLERANCE, NACCMaterial, ReturnMapResult,
                                         friction_angle_to_M, nacc_return_map_strain, nacc_update_reference)
 from fracture_gs.materials.brittle import BrittleMaterial
+from fracture_gs.materials.von_mises import VonMisesMaterial
 
 # The models in the order of their codes (csrc/common/material_registry.h lists the same). Adding a
 # model: its class (a MaterialModel), its header, and one line here and there.
@@ -28,6 +29,7 @@ MODELS: tuple[type[MaterialModel], ...] = (
     ElasticMaterial,
     NACCMaterial,
     BrittleMaterial,
+    VonMisesMaterial,
 )
 
 from fracture_gs.materials.table import (COLUMN, TABLE_COLUMNS, MaterialTable,  # noqa: E402 (reads MODELS)
