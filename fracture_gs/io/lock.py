@@ -1,8 +1,10 @@
 """An exclusive lock on an output folder while one run writes it.
 
-The lock is an advisory ``flock`` on a small file in the folder; the system releases it when
-the run ends or its process dies, so it never goes stale. Where ``fcntl`` is missing (Windows)
-the lock does nothing.
+The lock is an advisory ``flock`` on a small file in the folder (``.simulate.lock``,
+``.train.lock``, ``.render.lock``, ``.evaluate.lock``, ...); the system releases it when the run
+ends or its process dies, so it never goes stale. A run that made the folder for itself and
+leaves nothing in it but the lock file (it stopped on bad input) removes both again. Where
+``fcntl`` is missing (Windows) the lock does nothing.
 """
 from __future__ import annotations
 
@@ -18,9 +20,10 @@ class FolderBusy(ValueError):
 
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
-                what: str = "folder") -> Iterator[None]:
+                what: str = "folder", transient: bool = False) -> Iterator[None]:
     """Hold the lock file ``lock_name`` in ``folder`` (made if missing) for the block;
-    ``tool`` and ``what`` name the command and the folder in the message.
+    ``tool`` and ``what`` name the command and the folder in the message. ``transient``: the
+    lock file is removed when the block ends (a lock kept beside the folder it guards).
 
     Raises:
         FolderBusy: another process holds it.
@@ -31,15 +34,39 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
         yield
         return
     root = Path(folder)
-    root.mkdir(parents=True, exist_ok=True)
-    with open(root / lock_name, "a+", encoding="utf-8") as handle:
+    made = [p for p in (root, *root.absolute().parents) if not p.exists()]
+    path = root / lock_name
+    while True:
+        root.mkdir(parents=True, exist_ok=True)
+        try:
+            handle = open(path, "a+", encoding="utf-8")
+        except FileNotFoundError:   # the folder went in between (a run that removed its own)
+            continue
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            handle.close()
             raise FolderBusy(f"{root}: another {tool} run is writing this {what} (it holds "
                              f"{lock_name}); wait for it or choose another output folder") from None
+        try:   # the file locked must still be the one at the path (a run may remove its own)
+            same = os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        handle.close()
+    try:
         handle.seek(0)
         handle.truncate()
         handle.write(f"{os.getpid()}\n")
         handle.flush()
         yield
+    finally:
+        if transient or (made and [p.name for p in root.iterdir()] == [lock_name]):
+            path.unlink(missing_ok=True)   # still locked: a waiting run sees the path gone
+            for folder_made in made:       # deepest first, only the empty ones this run made
+                try:
+                    folder_made.rmdir()
+                except OSError:
+                    break
+        handle.close()
