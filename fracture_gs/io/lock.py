@@ -2,9 +2,10 @@
 
 The lock is an advisory ``flock`` on a small file in the folder (``.simulate.lock``,
 ``.train.lock``, ``.render.lock``, ``.evaluate.lock``, ...); the system releases it when the run
-ends or its process dies, so it never goes stale. A run that made the folder for itself and
-leaves nothing in it but the lock file (it stopped on bad input) removes both again. Where
-``fcntl`` is missing (Windows) the lock does nothing.
+ends or its process dies, so it never goes stale. The run removes the file when it ends (while
+still holding it: a run that opened the old file finds it gone and takes a new one), and a run
+that made the folder for itself and left nothing in it (it stopped on bad input) removes the
+folder too. Where ``fcntl`` is missing (Windows) the lock does nothing.
 """
 from __future__ import annotations
 
@@ -20,10 +21,9 @@ class FolderBusy(ValueError):
 
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
-                what: str = "folder", transient: bool = False) -> Iterator[None]:
+                what: str = "folder") -> Iterator[None]:
     """Hold the lock file ``lock_name`` in ``folder`` (made if missing) for the block;
-    ``tool`` and ``what`` name the command and the folder in the message. ``transient``: the
-    lock file is removed when the block ends (a lock kept beside the folder it guards).
+    ``tool`` and ``what`` name the command and the folder in the message.
 
     Raises:
         FolderBusy: another process holds it.
@@ -62,11 +62,10 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
         handle.flush()
         yield
     finally:
-        if transient or (made and [p.name for p in root.iterdir()] == [lock_name]):
-            path.unlink(missing_ok=True)   # still locked: a waiting run sees the path gone
-            for folder_made in made:       # deepest first, only the empty ones this run made
-                try:
-                    folder_made.rmdir()
-                except OSError:
-                    break
+        path.unlink(missing_ok=True)   # still locked: a run waiting on it sees the path gone
+        for folder_made in made:       # deepest first, only the empty ones this run made
+            try:
+                folder_made.rmdir()
+            except OSError:
+                break
         handle.close()

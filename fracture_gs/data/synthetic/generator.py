@@ -172,8 +172,7 @@ def generate_dataset(name: str, out: str, settings: GeneratorSettings = Generato
     check_output_folder(out, overwrite)
     require_mitsuba()
     parent, folder_name = os.path.split(os.path.normpath(os.path.abspath(out)))
-    with folder_lock(parent, f".{folder_name}.generate.lock", "generator", "dataset folder",
-                     transient=True):
+    with folder_lock(parent, f".{folder_name}.generate.lock", "generator", "dataset folder"):
         check_output_folder(out, overwrite)   # the run that held the lock may have made it
         return _generate(name, out, settings, overwrite, progress)
 
