@@ -158,8 +158,9 @@ def claim_folder(folder: str | os.PathLike, kind: str, paths: Iterable[str | os.
     for path in paths:
         path = Path(path)
         if os.path.lexists(path) and (path.is_dir() or path not in manifest):
-            why = (f" (its {MANIFEST_FILE} was written for another folder: a copy or a moved "
-                   "folder vouches for nothing)" if manifest.foreign else "")
+            why = (f" (its {MANIFEST_FILE} was not written for this folder: that of a copied "
+                   "or moved folder, or of an older version, vouches for nothing)"
+                   if manifest.foreign else "")
             raise FolderTaken(f"{option}: {path} is in the way: the tools did not write it in "
                               f"{root}{why}; move it away or choose another folder")
     manifest.kind = kind

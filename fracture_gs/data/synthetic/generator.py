@@ -107,9 +107,9 @@ def _check_target(out: str, overwrite: bool) -> None:
     manifest = Manifest.load(out)
     if manifest.foreign or (manifest.exists() and manifest.kind != KIND):
         raise FileExistsError(f"{out}: its {MANIFEST_FILE} was not written for this folder by "
-                              "the generator (a copied or moved dataset); --force replaces only "
-                              "a dataset generated here, so choose another --out or remove it "
-                              "yourself")
+                              "the generator (a copied or moved dataset, or one of an older "
+                              "version); --force replaces only a dataset generated here, so "
+                              "choose another --out or remove it yourself")
     if not overwrite:
         raise FileExistsError(f"{out}: already exists (use --force to replace it)")
 
