@@ -499,12 +499,25 @@ def test_train_render_m_and_evaluate_m_keep_what_they_did_not_write(
     one_line(codes[1], capsys, "another train.py run is writing this model folder")
     assert not (earlier / "renders" / "00000.png").exists()
     assert_kept(planted)
+    from fracture_gs.pipeline import render_model
+    from fracture_gs.pipeline.experiments import static_eval
+
+    render = ["-m", str(model), "--quiet"]
+    codes = concurrently(lambda: render_cli.main(render), lambda: render_cli.main(render),
+                         monkeypatch, render_model, "_render_views")
+    assert codes[0] == 0
+    one_line(codes[1], capsys, "another render.py -m run is writing this render folder")
+    evaluate = ["-m", str(model), "--no-lpips", "--no-fid", *CPU]
+    codes = concurrently(lambda: evaluate_main(evaluate), lambda: evaluate_main(evaluate),
+                         monkeypatch, static_eval, "evaluate_model")
+    assert codes[0] == 0
+    one_line(codes[1], capsys, "another evaluate.py run is writing this evaluation folder")
     for split in ("train", "test"):
         planted |= plant(model / split / "ours_6" / "renders", originals)
-    for _ in range(2):
-        assert render_cli.main(["-m", str(model)]) == 0
-        assert evaluate_main(["-m", str(model), "--no-lpips", "--no-fid", *CPU]) == 0
-        assert_kept(planted)
+    planted |= plant(model / "evaluation" / "sub", originals)
+    assert render_cli.main(render) == 0
+    assert evaluate_main(evaluate) == 0
+    assert_kept(planted)
 
 
 def test_the_demo_keeps_what_it_did_not_write(
