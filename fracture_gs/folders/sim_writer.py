@@ -117,9 +117,9 @@ class SimulationOutput(SimLayout):
     def claim(self, frames: int) -> None:
         """FolderTaken unless a fresh run of ``frames`` frames overwrites and mixes with no
         file the tools did not write in this folder (a user's folder, a copied run)."""
-        existing = [self.frames_dir / f"frame_{n:05d}.npz" for n in self.frames_on_disk()]
+        numbers = set(self.frames_on_disk()) | set(range(frames + 1))
         self.manifest = claim_folder(self.root, KIND, [
-            *self.output_files(), *existing, *(self.frame_path(f) for f in range(frames + 1))])
+            *self.output_files(), *(self.frame_path(f) for f in sorted(numbers))])
 
     # writing
     def remove_temporaries(self) -> None:
