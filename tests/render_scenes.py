@@ -36,7 +36,7 @@ def lattice_block(half: tuple[float, float, float], spacing: float = SPACING
 def write_model(folder: Path, points: np.ndarray, surface: np.ndarray, *,
                 spacing: float = SPACING, sh_degree: int = 1, iteration: int = 30,
                 opacity: float = 0.9, scale_factor: float = 0.7, seed: int = 0,
-                write_spacing: bool = True) -> GaussianModel:
+                write_spacing: bool = True, part_id: np.ndarray | None = None) -> GaussianModel:
     """A model folder whose surface particles each own one isotropic Gaussian at their position
     (colour varying with position, random higher SH bands). Returns the Gaussians."""
     rng = np.random.default_rng(seed)
@@ -54,7 +54,7 @@ def write_model(folder: Path, points: np.ndarray, surface: np.ndarray, *,
     gaussian_index[np.nonzero(surface)[0]] = np.arange(surface_points.shape[0])
     write_model_folder(folder, points, np.full(points.shape[0], spacing ** 3), surface,
                        gaussian_index, model, spacing=spacing if write_spacing else None,
-                       iteration=iteration)
+                       iteration=iteration, part_id=part_id)
     return model
 
 

@@ -13,6 +13,7 @@ def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
     from fracture_gs.io.device import DeviceError
     from fracture_gs.io.lock import FolderBusy
+    from fracture_gs.io.manifest import FolderTaken
     from fracture_gs.io.model_layout import ModelError
     from fracture_gs.io.output_folder import OutputFolderError, os_error_line
     from fracture_gs.folders.sim_reader import SimulationError
@@ -21,7 +22,7 @@ def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     try:
         status = function()
     except (EvaluationError, ModelError, SimulationError, ViewSpecError, OutputFolderError,
-            DeviceError, FolderBusy) as exc:
+            DeviceError, FolderBusy, FolderTaken) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except RunFailed as exc:

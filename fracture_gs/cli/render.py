@@ -6,7 +6,8 @@ simulation and whether FPGO was on); ``render.py -m <model>`` renders
 a trained model without simulation (handed to ``fracture_gs.cli.render_model``).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line naming the folder, file
-or option; an output folder that cannot be made included), 1 when writing fails later (a full
+or option; an output folder that cannot be made, that another render is writing, or that holds a
+file in the way that the tools did not write there included), 1 when writing fails later (a full
 disk), 130 when interrupted (images written so far stay, videos are not kept).
 """
 from __future__ import annotations
@@ -19,6 +20,8 @@ from pathlib import Path
 from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
+from fracture_gs.io.lock import FolderBusy
+from fracture_gs.io.manifest import FolderTaken
 from fracture_gs.io.model_layout import ModelError
 from fracture_gs.io.output_folder import OutputFolderError, os_error_line
 from fracture_gs.pipeline.render import RenderOptions, render_simulation
@@ -150,7 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         render_simulation(options_from_args(args))
     except (SimulationError, ModelError, ViewSpecError, InvalidInput, OutputFolderError,
-            DeviceError) as exc:
+            DeviceError, FolderBusy, FolderTaken) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:  # writing an image or video failed (disk full, folder removed, ...)

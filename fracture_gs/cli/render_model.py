@@ -13,6 +13,8 @@ from fracture_gs.data import DatasetError
 from fracture_gs.gaussians import PlyFormatError
 from fracture_gs.io.device import DEVICE_CHOICES
 from fracture_gs.io.output_folder import os_error_line
+from fracture_gs.io.lock import FolderBusy
+from fracture_gs.io.manifest import FolderTaken
 from fracture_gs.pipeline.render_model import RenderInputError, render_model
 
 
@@ -38,7 +40,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         render_model(args.model_path, source_path=args.source_path, iteration=args.iteration,
                      skip_train=args.skip_train, skip_test=args.skip_test, device=args.device,
                      quiet=args.quiet)
-    except (RenderInputError, DatasetError, PlyFormatError) as error:
+    except (RenderInputError, DatasetError, PlyFormatError, FolderBusy, FolderTaken) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     except OSError as error:  # writing into the model folder failed (read-only, disk full, ...)

@@ -3,7 +3,8 @@ the formulas: docs/formulas.md §2–§10).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: <key path or file>: <problem>``
 line on stderr, nothing simulated: bad scene keys, unreadable files, a grid too large for the
-memory, an ``--out`` that is a file, a damaged run for ``--resume``), 1 when the run fails
+memory, an ``--out`` that is a file or holds files the tools did not write there, the scene
+file's own folder, a damaged run for ``--resume``), 1 when the run fails
 (blow-up, out of memory, a write error; the frames written so far stay valid and
 ``--resume``-able), 130 when interrupted.
 """
@@ -21,6 +22,7 @@ from fracture_gs.config.scene import SceneError, load_scene
 from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.io.lock import FolderBusy
+from fracture_gs.io.manifest import FolderTaken
 from fracture_gs.io.output_folder import os_error_line
 from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.mpm.types import SimulationBlowUp
@@ -67,7 +69,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         out_dir = out_dir if out_dir is not None else DEFAULT_OUTPUT_ROOT / config.name
         run_simulation(config, out_dir, device=device, backend=args.backend,
                        resume=args.resume)
-    except (SceneError, InvalidInput, OutputError, DeviceError, FolderBusy) as exc:
+    except (SceneError, InvalidInput, OutputError, DeviceError, FolderBusy, FolderTaken) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except SimulationBlowUp as exc:

@@ -12,7 +12,6 @@ the file or option at fault, so command-line tools can print it and exit with st
 from __future__ import annotations
 
 import csv
-import hashlib
 import re
 import zipfile
 import zlib
@@ -23,6 +22,8 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError, parse_scene, read_yaml
+from fracture_gs.folders.run_record import (RunRecordError, hash_files, model_change, npz_digest,
+                                            read_run_record)
 from fracture_gs.io.manifest import Manifest
 from fracture_gs.io.sim_layout import (OPTIONAL_FRAME_ARRAYS, PARTICLE_ARRAYS, PARTICLES_FILE,
                                        RENDER_ARRAYS, SCENE_FILE, SimLayout)
@@ -145,15 +146,55 @@ def _load_npz(path: Path, names: tuple[str, ...],
         raise SimulationError(f"{path}: not a readable .npz file ({type(exc).__name__})") from None
 
 
-def _check_one_run(layout: SimLayout, frames: list[int]) -> None:
-    """SimulationError unless the frame files are frames 0..last without a gap and, where the
-    folder records what was written, all of them were written by its run (not left over from
-    another run into the same folder)."""
+def _check_one_run(layout: SimLayout, frames: list[int], scene: SceneConfig) -> None:
+    """SimulationError unless the frame files are those the folder's run wrote: each frame its
+    ``run.json`` records present, unchanged, and no other frame file (a missing last frame is
+    refused as a missing middle one is), and the scene's models unchanged since. A run of an
+    older version (no ``run.json``) is checked by its frame numbers, its diagnostics rows and
+    its manifest."""
+    try:
+        record = read_run_record(layout.run_path)
+    except RunRecordError as exc:
+        raise SimulationError(str(exc)) from None
+    if record is None:
+        _check_one_older_run(layout, frames)
+        return
+    expected = record.last_frame
+    missing = next((f for f in range(expected + 1) if f not in set(frames)), None)
+    if missing is not None:
+        raise SimulationError(f"{layout.frame_path(missing)} is missing (the run wrote frames "
+                              f"0..{expected}); the run is incomplete or damaged: simulate it again")
+    for frame in frames:
+        try:
+            same = frame <= expected and npz_digest(layout.frame_path(frame)) == record.frames[frame]
+        except RunRecordError as exc:
+            raise SimulationError(str(exc)) from None
+        if not same:
+            raise SimulationError(f"{layout.frame_path(frame)} was not written by the run in "
+                                  f"{layout.root} (frames of two runs are mixed): simulate it "
+                                  "again")
+    for index, obj in enumerate(scene.objects):
+        recorded = record.models.get(obj.name)
+        if obj.model is not None and recorded is not None:
+            change = model_change(obj.name, recorded, obj.model)
+            if change is not None:
+                raise SimulationError(f"{layout.scene_path}: objects[{index}].model: {change}; "
+                                      "simulate the scene again")
+
+
+def _check_one_older_run(layout: SimLayout, frames: list[int]) -> None:
+    """:func:`_check_one_run` for a run without ``run.json``."""
     present = set(frames)
-    gap = next((f for f in range(frames[-1] + 1) if f not in present), None)
+    last = frames[-1]
+    try:
+        rows = read_diagnostics_csv(layout.csv_path)["frame"] if layout.csv_path.is_file() else []
+        last = max(last, int(max(rows, default=last)))
+    except (OSError, ValueError, StopIteration):
+        pass   # an unreadable CSV tells nothing about the frames
+    gap = next((f for f in range(last + 1) if f not in present), None)
     if gap is not None:
         missing = layout.frame_path(gap)
-        raise SimulationError(f"{missing} is missing (the folder has frames up to {frames[-1]}); "
+        raise SimulationError(f"{missing} is missing (the run has frames up to {last}); "
                               "the run is incomplete or damaged: simulate it again")
     manifest = Manifest.load(layout.root)
     if manifest.exists():
@@ -211,23 +252,27 @@ class Simulation:
         frames = layout.frames_on_disk()
         if not frames:
             raise SimulationError(f"{layout.frames_dir}: no frame_*.npz files (the run wrote no frames)")
-        _check_one_run(layout, frames)
+        _check_one_run(layout, frames, scene)
         return cls(root, scene, particles, frames)
 
     def fingerprint(self) -> str:
         """SHA-256 (hex) of ``scene.yaml`` and ``particles.npz``: the same for every copy of one
         run and different for a run of another scene or other particles (SimulationError when a
         file cannot be read)."""
-        digest = hashlib.sha256()
-        for name in (SCENE_FILE, PARTICLES_FILE):
-            path = self.root / name
-            try:
-                with open(path, "rb") as handle:
-                    for block in iter(lambda: handle.read(1 << 20), b""):
-                        digest.update(block)
-            except OSError as exc:
-                raise SimulationError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-        return digest.hexdigest()
+        try:
+            return hash_files([self.root / SCENE_FILE, self.root / PARTICLES_FILE])
+        except OSError as exc:
+            raise SimulationError(f"{exc.filename}: cannot be read ({exc.strerror or exc})") \
+                from None
+
+    def run_id(self) -> str | None:
+        """The id of the run that wrote the frames (its ``run.json``), None for a run of an
+        older version."""
+        try:
+            record = read_run_record(SimLayout(self.root).run_path)
+        except RunRecordError as exc:
+            raise SimulationError(str(exc)) from None
+        return record.run if record is not None else None
 
     @property
     def object_names(self) -> list[str]:

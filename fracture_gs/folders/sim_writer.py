@@ -26,13 +26,17 @@ import numpy as np
 import torch
 import yaml
 
+from fracture_gs.folders.run_record import (RunRecord, RunRecordError, new_run_id, npz_digest,
+                                            read_run_record)
 from fracture_gs.folders.sim_reader import OutputError, check_npz_complete, damaged_file, read_npz
 from fracture_gs.io.atomic import (remove_temporaries, save_npz_atomic, write_bytes_atomic,
                                    write_text_atomic)
-from fracture_gs.io.manifest import Manifest, remove_written_tree
+from fracture_gs.io.manifest import Manifest, claim_folder, remove_written_tree
 from fracture_gs.io.sim_layout import SimLayout, is_simulation_folder
 
 _SOLVER_PREFIX = "solver/"
+_RUN_KEY = "run"            # checkpoint.npz: the id of the run it belongs to (run.json's)
+KIND = "simulation"         # the manifest kind of a simulation folder
 
 BASE_COLUMNS = ("frame", "time", "steps", "dt_min", "px", "py", "pz", "kinetic", "elastic",
                 "gravitational", "total_energy", "fractured")
@@ -91,6 +95,7 @@ class Checkpoint:
     frame: int
     solver_state: dict[str, Any]
     rows: list[list[float]]     # diagnostics rows of frames 0..frame
+    run: str | None = None      # the run id it was written with (None: an older version's)
 
 
 # ----------------------------------------------------------------------------- the folder
@@ -98,7 +103,8 @@ class Checkpoint:
 
 class SimulationOutput(SimLayout):
     """Writes (and, for ``--resume``, reads back) one simulation output folder; every file it
-    writes is recorded in the folder's manifest (:mod:`fracture_gs.io.manifest`)."""
+    writes is recorded in the folder's manifest (:mod:`fracture_gs.io.manifest`) and every frame
+    in ``run.json`` (:mod:`fracture_gs.folders.run_record`)."""
 
     def __init__(self, root: str | Path, object_names: Sequence[str]) -> None:
         super().__init__(root)
@@ -106,6 +112,14 @@ class SimulationOutput(SimLayout):
         self.columns = diagnostics_columns(self.object_names)
         self.rows: list[list[float]] = []
         self.manifest = Manifest.load(self.root)
+        self.record: RunRecord | None = None
+
+    def claim(self, frames: int) -> None:
+        """FolderTaken unless a fresh run of ``frames`` frames overwrites and mixes with no
+        file the tools did not write in this folder (a user's folder, a copied run)."""
+        numbers = set(self.frames_on_disk()) | set(range(frames + 1))
+        self.manifest = claim_folder(self.root, KIND, [
+            *self.output_files(), *(self.frame_path(f) for f in sorted(numbers))])
 
     # writing
     def remove_temporaries(self) -> None:
@@ -118,38 +132,83 @@ class SimulationOutput(SimLayout):
         checkpoint and diagnostics, and the renders and evaluation made of it; a file they did
         not write stays. Returns how many files were removed."""
         self.remove_temporaries()
+        removed = 0
         if self.manifest.exists():
             removed = len(remove_written_tree(self.root, separate=is_simulation_folder))
-        else:  # a folder without a manifest: only the names a simulation writes
-            stale = [*self.frames_dir.glob("frame_*.npz")] if self.frames_dir.is_dir() else []
-            stale += [path for path in (self.checkpoint_path, self.csv_path, self.png_path)
-                      if path.is_file()]
-            for path in stale:
-                path.unlink()
-            removed = len(stale)
-        self.manifest = Manifest(self.root)
+        self.manifest = Manifest(self.root, kind=KIND)
         return removed
 
-    def start(self, scene: Mapping[str, Any], particles: Mapping[str, np.ndarray]) -> None:
-        """Begin a fresh run (after :meth:`clear_earlier_run`): write the scene and the
-        constant particle arrays."""
+    def start(self, scene: Mapping[str, Any], particles: Mapping[str, np.ndarray],
+              record: RunRecord) -> None:
+        """Begin a fresh run (after :meth:`clear_earlier_run`): write the scene, the constant
+        particle arrays and the run record."""
         self.frames_dir.mkdir(parents=True, exist_ok=True)
         self.rows = []
-        self.manifest.add(self.scene_path, self.particles_path, self.checkpoint_path,
-                          self.csv_path, self.png_path)
+        self.record = record
+        self.manifest.add(*self.output_files())
         self.manifest.save()
         self.write_scene(scene)
         save_npz_atomic(self.particles_path, particles)
+        record.write(self.run_path)
 
     def adopt_frames(self, last: int) -> None:
         """Record the files of a resumed run (frames 0..``last``) in the manifest: a folder
         written before the tools kept one gets one."""
         if not self.manifest.exists():
-            self.manifest.add(self.scene_path, self.particles_path, self.checkpoint_path,
-                              self.csv_path, self.png_path)
+            self.manifest = Manifest(self.root, kind=KIND)
+            self.manifest.add(*self.output_files())
             self.manifest.add(*(self.frame_path(f) for f in range(last + 1)
                                 if self.frame_path(f).is_file()))
             self.manifest.save()
+        elif self.run_path not in self.manifest:
+            self.manifest.add(self.run_path)
+            self.manifest.save()
+
+    def read_record(self) -> RunRecord | None:
+        """The folder's ``run.json`` (None for a run of an older version); OutputError when it
+        is damaged."""
+        try:
+            return read_run_record(self.run_path)
+        except RunRecordError as exc:
+            raise OutputError(str(exc)) from None
+
+    def resume_record(self, checkpoint: Checkpoint, models: dict[str, dict[str, Any]]) -> None:
+        """Take up the run record for a resume from ``checkpoint``: OutputError when the
+        checkpoint or the frames before it belong to another run; a run of an older version
+        gets a record of the frames it has."""
+        record = self.read_record()
+        if record is None:
+            record = RunRecord(run=checkpoint.run or new_run_id(), models=models)
+            for frame in range(checkpoint.frame):
+                record.record_frame(frame, self.digest(frame))
+        else:
+            if checkpoint.run != record.run:
+                raise OutputError(f"{self.checkpoint_path}: belongs to another run than the "
+                                  f"frames (its run id is not the one in {self.run_path.name})")
+            if not record.last_frame <= checkpoint.frame <= record.last_frame + 1:
+                raise OutputError(f"{self.checkpoint_path}: holds frame {checkpoint.frame}, but "
+                                  f"the run's frames end at {record.last_frame}")
+            for frame in range(checkpoint.frame):
+                if self.digest(frame) != record.frames[frame]:
+                    raise OutputError(f"{self.frame_path(frame)}: was not written by this run "
+                                      f"(its digest differs from {self.run_path.name})")
+        self.record = record
+
+    def digest(self, frame: int) -> str:
+        """:func:`npz_digest` of frame ``frame`` (OutputError when it is missing or damaged)."""
+        try:
+            return npz_digest(self.frame_path(frame))
+        except RunRecordError as exc:
+            raise OutputError(str(exc)) from None
+
+    def frame_recorded(self, frame: int) -> bool:
+        """Whether ``run.json`` holds frame ``frame`` as the file now on disk has it."""
+        if self.record is None or frame > self.record.last_frame:
+            return False
+        try:
+            return self.digest(frame) == self.record.frames[frame]
+        except OutputError:
+            return False
 
     def write_scene(self, scene: Mapping[str, Any]) -> None:
         text = yaml.safe_dump(dict(scene), sort_keys=False, default_flow_style=None)
@@ -167,12 +226,17 @@ class SimulationOutput(SimLayout):
                    for key, value in solver_state.items()}
         payload.update(frame=np.int64(frame), rows=np.asarray(self.rows, dtype=np.float64),
                        columns=np.asarray(self.columns, dtype=np.str_))
+        if self.record is not None:
+            payload[_RUN_KEY] = np.asarray(self.record.run, dtype=np.str_)
         save_npz_atomic(self.checkpoint_path, payload)
         if self.frame_path(frame) not in self.manifest:   # recorded before the file appears
             self.manifest.add(self.frame_path(frame))
             self.manifest.save()
         save_npz_atomic(self.frame_path(frame), arrays)
         self.write_csv()
+        if self.record is not None:
+            self.record.record_frame(frame, self.digest(frame))
+            self.record.write(self.run_path)
 
     def write_csv(self) -> None:
         buffer = io.StringIO()
@@ -201,7 +265,8 @@ class SimulationOutput(SimLayout):
         solver_state = {key[len(_SOLVER_PREFIX):]: value for key, value in data.items()
                         if key.startswith(_SOLVER_PREFIX)}
         self.rows = [list(map(float, r)) for r in rows]
-        return Checkpoint(frame=frame, solver_state=solver_state, rows=self.rows)
+        run = str(data[_RUN_KEY]) if _RUN_KEY in data else None
+        return Checkpoint(frame=frame, solver_state=solver_state, rows=self.rows, run=run)
 
     def frame_complete(self, frame: int) -> bool:
         """Whether the file of ``frame`` exists and is a complete archive."""

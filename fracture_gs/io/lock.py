@@ -1,8 +1,11 @@
 """An exclusive lock on an output folder while one run writes it.
 
-The lock is an advisory ``flock`` on a small file in the folder; the system releases it when
-the run ends or its process dies, so it never goes stale. Where ``fcntl`` is missing (Windows)
-the lock does nothing.
+The lock is an advisory ``flock`` on a small file in the folder (``.simulate.lock``,
+``.train.lock``, ``.render.lock``, ``.evaluate.lock``, ...); the system releases it when the run
+ends or its process dies, so it never goes stale. The run removes the file when it ends (while
+still holding it: a run that opened the old file finds it gone and takes a new one), and a run
+that made the folder for itself and left nothing in it (it stopped on bad input) removes the
+folder too. Where ``fcntl`` is missing (Windows) the lock does nothing.
 """
 from __future__ import annotations
 
@@ -31,15 +34,38 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
         yield
         return
     root = Path(folder)
-    root.mkdir(parents=True, exist_ok=True)
-    with open(root / lock_name, "a+", encoding="utf-8") as handle:
+    made = [p for p in (root, *root.absolute().parents) if not p.exists()]
+    path = root / lock_name
+    while True:
+        root.mkdir(parents=True, exist_ok=True)
+        try:
+            handle = open(path, "a+", encoding="utf-8")
+        except FileNotFoundError:   # the folder went in between (a run that removed its own)
+            continue
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            handle.close()
             raise FolderBusy(f"{root}: another {tool} run is writing this {what} (it holds "
                              f"{lock_name}); wait for it or choose another output folder") from None
+        try:   # the file locked must still be the one at the path (a run may remove its own)
+            same = os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        handle.close()
+    try:
         handle.seek(0)
         handle.truncate()
         handle.write(f"{os.getpid()}\n")
         handle.flush()
         yield
+    finally:
+        path.unlink(missing_ok=True)   # still locked: a run waiting on it sees the path gone
+        for folder_made in made:       # deepest first, only the empty ones this run made
+            try:
+                folder_made.rmdir()
+            except OSError:
+                break
+        handle.close()

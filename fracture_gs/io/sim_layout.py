@@ -8,6 +8,7 @@
     diagnostics.csv          one row per frame
     diagnostics.png          momentum and energies over time
     checkpoint.npz           the solver's full state after the last complete frame
+    run.json                 the run's id, its models' digests and each frame's digest
     renders/, renders_nofpgo/   render.py's images and videos (with and without FPGO)
     evaluation/              evaluate.py --sim's metrics and report
     .simulate.lock           held while a simulate.py run writes the folder
@@ -29,6 +30,7 @@ DIAGNOSTICS_PNG = "diagnostics.png"
 RENDERS_DIR = "renders"
 RENDERS_NOFPGO_DIR = "renders_nofpgo"
 EVALUATION_DIR = "evaluation"
+RUN_FILE = "run.json"
 LOCK_FILE = ".simulate.lock"
 
 # particles.npz: the arrays a reader needs (the writer stores more: mass, part_id, ...)
@@ -94,6 +96,10 @@ class SimLayout:
         return self.root / DIAGNOSTICS_PNG
 
     @property
+    def run_path(self) -> Path:
+        return self.root / RUN_FILE
+
+    @property
     def evaluation_dir(self) -> Path:
         return self.root / EVALUATION_DIR
 
@@ -104,6 +110,11 @@ class SimLayout:
     def renders_dir(self, fpgo: bool) -> Path:
         """render.py's default output folder (with or without FPGO)."""
         return self.root / renders_dir_name(fpgo)
+
+    def output_files(self) -> list[Path]:
+        """The files of a run other than its frames."""
+        return [self.scene_path, self.particles_path, self.checkpoint_path, self.csv_path,
+                self.png_path, self.run_path]
 
     def frames_on_disk(self) -> list[int]:
         """The frame numbers of the frame files present, ascending."""

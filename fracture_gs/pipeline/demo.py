@@ -26,7 +26,8 @@ import torch
 import yaml
 
 from fracture_gs.io.atomic import write_text_atomic
-from fracture_gs.io.manifest import Manifest, file_stamps, record_written_since
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import Manifest, claim_folder
 from fracture_gs.io.model_layout import PARTICLES_FILE
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import EVALUATION_DIR, SimLayout
@@ -35,6 +36,8 @@ from fracture_gs.pipeline.render import TIMING_FILE
 from fracture_gs.recon.pipeline import TrainConfig
 
 STAGES = ("data", "train", "scene", "simulate", "render", "evaluate")
+LOCK_FILE = ".demo.lock"
+KIND = "demo"                 # the manifest kind of the demo's folder
 OBJECTS = ("teapot", "table")
 
 
@@ -195,10 +198,15 @@ class Demo:
         self.record(self.log_path)
         write_text_atomic(self.log_path, json.dumps(self.log, indent=2) + "\n")
 
+    def own_files(self) -> list[Path]:
+        """The files the demo writes directly (its log and scenes)."""
+        return [self.log_path, *(self.scene_path(mode) for mode in ("collision", "mls"))]
+
     def record(self, *paths: Path) -> None:
         """Record files the demo writes directly (its log and scenes) in its manifest."""
         manifest = Manifest.load(self.out)
-        if any(path not in manifest for path in paths):
+        if any(path not in manifest for path in paths) or manifest.kind != KIND:
+            manifest.kind = KIND
             manifest.add(*paths)
             manifest.save()
 
@@ -317,16 +325,18 @@ def evaluation_specs(demo: Demo) -> list[RunSpec]:
 
 def stage_evaluate(demo: Demo) -> None:
     from fracture_gs.metrics.protocol import MetricNetworks
-    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report
+    from fracture_gs.pipeline.experiments.sim_report import (evaluate_and_report,
+                                                             evaluation_folder, report_files)
 
     size = demo.profile.render_size
     options = EvalOptions(views=f"orbit:{demo.profile.views}", resolution=(size, size),
                           window=demo.profile.window, device=demo.device)
     networks = MetricNetworks.load(demo.device, demo.weights_dir)
-    before = file_stamps(demo.evaluation)
-    evaluate_and_report(evaluation_specs(demo), options, networks, demo.evaluation,
-                        "Demo: teapot dropped on a table", with_paper=True)
-    record_written_since(demo.evaluation, before)
+    specs = evaluation_specs(demo)
+    with evaluation_folder(demo.evaluation, report_files(specs, demo.evaluation)) as before_writing:
+        evaluate_and_report(specs, options, networks, demo.evaluation,
+                            "Demo: teapot dropped on a table", with_paper=True,
+                            before_writing=before_writing)
 
 
 STAGE_FUNCTIONS = {"data": stage_data, "train": stage_train, "scene": stage_scene,
@@ -371,10 +381,19 @@ def stage_is_current(logged: dict | None, settings: dict | None, outputs_exist: 
 
 
 def run_demo(demo: Demo) -> dict:
-    """Run (or skip) every stage, then print the comparison and where the results are."""
+    """Run (or skip) every stage, then print the comparison and where the results are (one
+    demo at a time per folder; FolderTaken when its log or scenes are files the tools did not
+    write there)."""
+    prepare_output_folder(demo.out, "--out")
+    with folder_lock(demo.out, LOCK_FILE, "demo.py", "demo folder"):
+        claim_folder(demo.out, KIND, demo.own_files())
+        return _run_demo_locked(demo)
+
+
+def _run_demo_locked(demo: Demo) -> dict:
+    """:func:`run_demo` once the demo folder's lock is held."""
     from fracture_gs.pipeline.experiments.sim_report import print_comparison
 
-    prepare_output_folder(demo.out, "--out")
     if demo.log_path.is_file() and not demo.force:
         demo.log = json.loads(demo.log_path.read_text())
     if demo.log.get("profile", demo.profile.name) != demo.profile.name:

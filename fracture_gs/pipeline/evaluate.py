@@ -9,7 +9,9 @@ of a trained model, and the paper's experiments.
 * :func:`run_experiments` — the paper's experiments, each under ``<out>/<name>/``.
 
 Every check of the input happens before the first file is written; errors are
-:class:`~fracture_gs.pipeline.experiments.sim_eval.EvaluationError` (one line).
+:class:`~fracture_gs.pipeline.experiments.sim_eval.EvaluationError` (one line). An evaluation
+folder is written by one evaluation at a time and only where no file is in the way that the
+tools did not write there (:func:`~fracture_gs.pipeline.experiments.sim_report.evaluation_folder`).
 """
 from __future__ import annotations
 
@@ -21,13 +23,12 @@ from typing import Any
 import torch
 
 from fracture_gs.io.atomic import write_text_atomic
-from fracture_gs.io.manifest import file_stamps, record_written_since
 from fracture_gs.io.model_layout import EVALUATION_DIR, latest_point_cloud
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.metrics.protocol import MetricNetworks
 from fracture_gs.pipeline.experiments.sim_eval import (EvalOptions, EvaluationError, RunSpec, check_run,
-                                                      run_of_renders)
+                                                      check_same_scene, run_of_renders)
 from fracture_gs.pipeline.experiments.static_eval import StaticResult
 from fracture_gs.render.views import ViewSpecError, check_image_size
 
@@ -77,7 +78,8 @@ def evaluate_simulation(sim: Path, *, options: EvalOptions, metrics: MetricChoic
                         progress: bool = True) -> tuple[dict[str, Any], Path]:
     """Evaluate the run in ``sim`` (module docstring); returns the metrics and the folder they
     were written to (``<sim>/evaluation`` unless ``out``)."""
-    from fracture_gs.pipeline.experiments.sim_report import evaluate_and_report
+    from fracture_gs.pipeline.experiments.sim_report import (evaluate_and_report,
+                                                             evaluation_folder, report_files)
 
     if mls and not compare:
         raise EvaluationError("--mls: only used with --compare")
@@ -92,15 +94,16 @@ def evaluate_simulation(sim: Path, *, options: EvalOptions, metrics: MetricChoic
         specs = [run_of_renders(sim, renders, None if fpgo else False)]
     else:
         specs = [RunSpec("FPGO" if fpgo else "no FPGO", sim, fpgo)]
-    for spec in specs:  # a wrong simulation fails here, before the folder probe and the networks
-        check_run(spec)
+    opened = [check_run(spec) for spec in specs]  # a wrong simulation fails here, before the
+    if mls:                                         # folder probe and the networks
+        check_same_scene(opened[-1], opened[0])
     out_dir = prepare_output_folder(out if out is not None else SimLayout(sim).evaluation_dir,
                                     "--out", keep=False)  # made when the results are written
     networks = metrics.load(options.device)
-    before = file_stamps(out_dir)
-    result = evaluate_and_report(specs, options, networks, out_dir, f"Evaluation of {sim.name}",
-                                 with_paper=compare, progress=progress)
-    record_written_since(out_dir, before)
+    with evaluation_folder(out_dir, report_files(specs, out_dir)) as before_writing:
+        result = evaluate_and_report(specs, options, networks, out_dir,
+                                     f"Evaluation of {sim.name}", with_paper=compare,
+                                     progress=progress, before_writing=before_writing)
     return result, out_dir
 
 
@@ -110,16 +113,25 @@ def evaluate_trained_model(model: Path, *, split: str, device: torch.device,
     """PSNR / SSIM / LPIPS of a trained model's ``split`` views; writes ``metrics.json``,
     ``report.md`` and ``strip.png`` into ``out`` (default ``<model>/evaluation``). Returns the
     result and that folder."""
+    from fracture_gs.pipeline.experiments.sim_report import REPORT_FILES, evaluation_folder
     from fracture_gs.pipeline.experiments.static_eval import evaluate_model
-    from fracture_gs.report.markdown import table, write_report
-    from fracture_gs.report.plots import frame_strip
 
     latest_point_cloud(model)  # a trained model before an output folder is made inside it
     out_dir = prepare_output_folder(out if out is not None else model / EVALUATION_DIR, "--out",
                                     keep=False)  # checked now, made when the results are written
     networks = metrics.load(device, fid=False)
-    result = evaluate_model(model, networks, split, device)
-    before = file_stamps(out_dir)
+    with evaluation_folder(out_dir, [out_dir / name for name in REPORT_FILES]) as before_writing:
+        result = evaluate_model(model, networks, split, device)
+        before_writing()
+        _write_model_report(model, result, out_dir)
+    return result, out_dir
+
+
+def _write_model_report(model: Path, result: StaticResult, out_dir: Path) -> None:
+    """``metrics.json``, ``report.md`` and ``strip.png`` of a model's static evaluation."""
+    from fracture_gs.report.markdown import table, write_report
+    from fracture_gs.report.plots import frame_strip
+
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = result.to_json()
     write_text_atomic(out_dir / "metrics.json", json.dumps(
@@ -135,8 +147,6 @@ def evaluate_trained_model(model: Path, *, split: str, device: torch.device,
                     out_dir / "strip.png")
         sections.append(("Render and ground truth", "![render and ground truth](strip.png)\n"))
     write_report(out_dir / "report.md", f"Static evaluation of {model.name}", sections)
-    record_written_since(out_dir, before)
-    return result, out_dir
 
 
 def run_experiments(names: tuple[str, ...], *, out_root: Path, configs: Path, device: torch.device,

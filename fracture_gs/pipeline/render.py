@@ -4,6 +4,13 @@ Renders every frame from every view into ``<sim>/renders/`` (``renders_nofpgo/``
 FPGO): ``<view>/00000.png``, ``video_<view>.mp4`` (H.264), ``preview.gif`` (one view),
 ``timing.csv`` and, with ``export_ply``, ``ply/frame_00000.ply`` (3DGS layout). The files are
 recorded in the output folder's manifest (:mod:`fracture_gs.io.manifest`).
+
+One render at a time writes a folder (its lock ``.render.lock``). A render writes only where no
+file is in the way that the tools did not write there, and first removes the files of the earlier
+render in the folder, so no image of another render (more frames, other views, FPGO otherwise)
+stays beside this one's. Everything it reads is checked before the first file is written (every
+frame of the run, :meth:`Simulation.open`); a frame found damaged later still stops the render
+with the files it wrote removed.
 """
 from __future__ import annotations
 
@@ -12,17 +19,18 @@ import io
 import sys
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TextIO
 
 import numpy as np
 import torch
 
-from fracture_gs.folders.sim_reader import Simulation
+from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.io.atomic import write_text_atomic
-from fracture_gs.io.manifest import Manifest
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import claim_folder, replace_written
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
@@ -33,6 +41,8 @@ from fracture_gs.render.views import View, ViewSpecError
 
 PREVIEW_FILE = "preview.gif"
 TIMING_FILE = "timing.csv"
+LOCK_FILE = ".render.lock"
+KIND = "render"               # the manifest kind of a render folder
 TIMING_COLUMNS = ("frame", "gaussians", "fpgo_gaussians", "fractured", "hidden_particles",
                   "buried_particles", "load_wait_ms", "deform_ms", "fpgo_ms", "raster_ms",
                   "raster_ms_per_view", "ply_ms")
@@ -84,16 +94,15 @@ def _ply_path(out_dir: Path, frame: int) -> Path:
     return out_dir / "ply" / f"frame_{frame:05d}.ply"
 
 
-def _record_outputs(out_dir: Path, views: list[str], frames: list[int], export_ply: bool) -> None:
-    """Add every file this render will write to the output folder's manifest (before writing,
-    so that an interrupted render's files are known too)."""
-    manifest = Manifest.load(out_dir)
-    manifest.add(out_dir / PREVIEW_FILE, out_dir / TIMING_FILE, out_dir / RENDER_INFO_FILE,
-                 *(_video_path(out_dir, view) for view in views),
-                 *(_png_path(out_dir, view, frame) for view in views for frame in frames))
+def _output_files(out_dir: Path, views: list[str], frames: list[int],
+                  export_ply: bool) -> list[Path]:
+    """Every file a render of ``frames`` from ``views`` writes."""
+    files = [out_dir / PREVIEW_FILE, out_dir / TIMING_FILE, out_dir / RENDER_INFO_FILE,
+             *(_video_path(out_dir, view) for view in views),
+             *(_png_path(out_dir, view, frame) for view in views for frame in frames)]
     if export_ply:
-        manifest.add(*(_ply_path(out_dir, frame) for frame in frames))
-    manifest.save()
+        files += [_ply_path(out_dir, frame) for frame in frames]
+    return files
 
 
 def _timing_csv(rows: list[dict[str, float]]) -> str:
@@ -122,9 +131,8 @@ def _render_views(gaussians: FrameGaussians, views: list[View], background: torc
 def render_simulation(options: RenderOptions, log: TextIO | None = None,
                       progress: bool | None = None) -> RenderSummary:
     """Render ``options.sim`` (see the module docstring); raises SimulationError, ModelError or
-    ViewSpecError for bad input before anything is written."""
-    from tqdm import tqdm
-
+    ViewSpecError for bad input before anything is written, FolderTaken when a file the tools
+    did not write is in the way, FolderBusy when another render writes the folder."""
     log = log if log is not None else sys.stdout
     started = time.perf_counter()
     sim = Simulation.open(options.sim)
@@ -141,12 +149,27 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
     device = options.device
     views = [View(view.name, view.camera.to(device)) for view in views]
     background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
+    with folder_lock(out_dir, LOCK_FILE, "render.py", "render folder"):
+        return _render_locked(options, sim, frames, views, preview, out_dir, scene, background,
+                              log, progress, started)
+
+
+def _render_locked(options: RenderOptions, sim: Simulation, frames: list[int], views: list[View],
+                   preview: str, out_dir: Path, scene: SceneGaussians, background: torch.Tensor,
+                   log: TextIO, progress: bool | None, started: float) -> RenderSummary:
+    """:func:`render_simulation` once the output folder's lock is held."""
+    from tqdm import tqdm
+
+    device = options.device
+    names = [view.name for view in views]
+    files = _output_files(out_dir, names, frames, options.export_ply)
+    manifest = replace_written(claim_folder(out_dir, KIND, files), files)
     for name in names:
         (out_dir / name).mkdir(parents=True, exist_ok=True)
     if options.export_ply:
         (out_dir / "ply").mkdir(parents=True, exist_ok=True)
-    _record_outputs(out_dir, names, frames, options.export_ply)
-    write_render_info(out_dir, RenderInfo.of(sim, options.fpgo))
+    info = RenderInfo.of(sim, options.fpgo, frames=frames, views=names)
+    write_render_info(out_dir, replace(info, complete=False))
 
     videos = {view.name: Mp4Writer(_video_path(out_dir, view.name), view.camera.width,
                                    view.camera.height, options.fps) for view in views}
@@ -203,7 +226,15 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
             video.close()
         write_gif(out_dir / PREVIEW_FILE, preview_frames, options.fps)
         write_text_atomic(out_dir / TIMING_FILE, _timing_csv(rows))
+        write_render_info(out_dir, info)
         completed = True
+    except SimulationError:   # a frame found damaged only now: nothing of this render stays
+        loader.shutdown(wait=True, cancel_futures=True)
+        writer.shutdown(wait=True)
+        for video in videos.values():
+            video.abort()
+        manifest.remove_written()
+        raise
     finally:
         bar.close()
         loader.shutdown(wait=True, cancel_futures=True)

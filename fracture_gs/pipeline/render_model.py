@@ -2,7 +2,9 @@
 
 Writes ``<model>/{train,test}/ours_<iteration>/{renders,gt}/<index:05d>.png`` for the views of
 the dataset recorded in ``<model>/cfg_args`` (background and image scale as trained), records
-them in that folder's manifest, and returns the mean PSNR / SSIM of each split.
+them in that folder's manifest, and returns the mean PSNR / SSIM of each split. One render at a
+time writes a split's folder (its lock ``.render.lock``), only where no file is in the way that
+the tools did not write there, replacing the files of the earlier render of that folder.
 """
 from __future__ import annotations
 
@@ -19,12 +21,17 @@ from fracture_gs.folders.model_folder import read_cfg_args
 from fracture_gs.gaussians import GaussianModel, read_ply
 from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
-from fracture_gs.io.manifest import Manifest
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import claim_folder, replace_written
 from fracture_gs.io.model_layout import (CFG_ARGS_FILE, GROUND_TRUTH_DIR, POINT_CLOUD_DIR,
                                          RENDERED_DIR, latest_iteration, point_cloud_path,
                                          split_render_dir, view_image_name)
 from fracture_gs.metrics.image import psnr, ssim
 from fracture_gs.recon.gaussian_fit import render_model as render_gaussians
+
+
+LOCK_FILE = ".render.lock"
+KIND = "model-render"         # the manifest kind of a split's render folder
 
 
 class RenderInputError(ValueError):
@@ -43,11 +50,17 @@ def render_split(model_path: str, split: str, iteration: int, dataset: Dataset,
                  gaussians: GaussianModel, device: torch.device, quiet: bool) -> dict[str, float]:
     """Render every view of ``dataset`` into ``<model>/<split>/ours_<iteration>/``."""
     root = split_render_dir(model_path, split, iteration)
+    files = [os.path.join(root, kind, view_image_name(index)) for index in range(len(dataset))
+             for kind in (RENDERED_DIR, GROUND_TRUTH_DIR)]
+    with folder_lock(root, LOCK_FILE, "render.py -m", "render folder"):
+        replace_written(claim_folder(root, KIND, files, option="-m"), files)
+        return _render_views(root, dataset, gaussians, device, quiet, split)
+
+
+def _render_views(root: str, dataset: Dataset, gaussians: GaussianModel, device: torch.device,
+                  quiet: bool, split: str) -> dict[str, float]:
+    """:func:`render_split` once its folder is locked and claimed."""
     background = torch.tensor(dataset.background, dtype=torch.float32, device=device)
-    manifest = Manifest.load(root)
-    manifest.add(*(os.path.join(root, kind, view_image_name(index)) for index in range(len(dataset))
-                   for kind in (RENDERED_DIR, GROUND_TRUTH_DIR)))
-    manifest.save()
     psnrs, ssims = [], []
     with torch.no_grad():
         for index in tqdm(range(len(dataset)), desc=f"render {split}", disable=quiet,

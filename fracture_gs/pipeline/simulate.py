@@ -2,11 +2,14 @@
 (layout :mod:`fracture_gs.io.sim_layout`).
 
 The folder is locked while a run writes it (a second run into it stops with
-:class:`~fracture_gs.io.lock.FolderBusy`); a fresh run over an earlier one first removes the
-files the tools wrote for it (frames, renders, evaluation) and keeps every other file.
+:class:`~fracture_gs.io.lock.FolderBusy`). A fresh run writes only where no file is in the way
+that the tools did not write in this folder (:func:`~fracture_gs.io.manifest.claim_folder`), never
+over its own scene file, and first removes the files the tools wrote for an earlier run (frames,
+renders, evaluation), keeping every other file.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Mapping
@@ -18,6 +21,7 @@ import numpy as np
 import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError
+from fracture_gs.folders.run_record import RunRecord, model_change, model_identity, new_run_id
 from fracture_gs.folders.sim_reader import OutputError, load_frame, read_npz
 from fracture_gs.folders.sim_writer import SimulationOutput, diagnostics_row
 from fracture_gs.io.lock import folder_lock
@@ -146,6 +150,43 @@ def check_resumable(output: SimulationOutput, config: SceneConfig, built: BuiltS
                          "(model files changed?)")
 
 
+def scene_models(config: SceneConfig) -> dict[str, dict[str, Any]]:
+    """:func:`model_identity` of each object's model, by object name (InvalidInput naming the
+    object when a model file cannot be read)."""
+    models = {}
+    for index, obj in enumerate(config.objects):
+        if obj.model is not None:
+            try:
+                models[obj.name] = model_identity(obj.model)
+            except OSError as exc:
+                raise InvalidInput(f"objects[{index}].model",
+                                   f"{exc.filename or obj.model}: cannot be read "
+                                   f"({exc.strerror or exc})") from None
+    return models
+
+
+def check_models_unchanged(record: RunRecord, config: SceneConfig) -> None:
+    """SceneError (``--resume``) when a model changed since the run in the folder started."""
+    for index, obj in enumerate(config.objects):
+        recorded = record.models.get(obj.name)
+        if obj.model is not None and recorded is not None:
+            change = model_change(obj.name, recorded, obj.model)
+            if change is not None:
+                raise SceneError("--resume", f"objects[{index}].model: {change}; start the run "
+                                 "again without --resume")
+
+
+def check_scene_not_overwritten(config: SceneConfig, output: SimulationOutput) -> None:
+    """InvalidInput when the scene file the run was given is the folder's own scene.yaml, which
+    the run would write over."""
+    source = config.source
+    if source is not None and output.scene_path.exists() and source.exists() and \
+            os.path.samefile(source, output.scene_path):
+        raise InvalidInput("--out", f"{output.root} holds the scene file {source} itself, which "
+                           "the run would write over; copy the scene elsewhere or choose "
+                           "another --out")
+
+
 def _print_summary(summary: RunSummary, stream: TextIO) -> None:
     rel = summary.momentum_drift / summary.momentum_scale if summary.momentum_scale > 0 \
         else float("nan")
@@ -183,12 +224,14 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
               resume: bool, log: TextIO) -> int:
     """Start a fresh output folder (frame 0) or restore the checkpoint; returns the last
     complete frame."""
+    models = scene_models(config)
     if not resume:
         removed = output.clear_earlier_run()
         if removed:
             print(f"{output.root}: replacing the earlier run (removed the {removed} files the tools "
                   "wrote for it; other files are kept)", file=log)
-        output.start(config.to_dict(), particle_arrays(built.particles))
+        output.start(config.to_dict(), particle_arrays(built.particles),
+                     RunRecord(run=new_run_id(), models=models))
         row = diagnostics_row(0, solver.state.time, 0, float("nan"), solver.diagnostics())
         output.write_frame(0, _frame_arrays(solver), row, solver.state_dict())
         return 0
@@ -196,16 +239,21 @@ def _open_run(config: SceneConfig, built: BuiltScene, output: SimulationOutput, 
     try:
         checkpoint = output.load_checkpoint()
         output.check_frames(checkpoint.frame)
+        output.resume_record(checkpoint, models)
     except OutputError as exc:
         raise _resume_error(exc) from None
+    check_models_unchanged(output.record, config)
     output.adopt_frames(checkpoint.frame)
     try:
         solver.load_state_dict(checkpoint.solver_state)
     except (KeyError, ValueError, TypeError, RuntimeError) as exc:
         raise _resume_error(OutputError(f"{output.checkpoint_path}: does not hold this scene's "
                                         f"solver state ({exc})")) from None
-    output.write_scene(config.to_dict())
-    if not output.frame_complete(checkpoint.frame):  # killed between checkpoint and frame
+    stored = output.read_scene()
+    if config.frames > int(stored.get("frames", 0) if isinstance(stored, dict) else 0):
+        check_scene_not_overwritten(config, output)   # the run grows: the scene says so
+        output.write_scene(config.to_dict())
+    if not output.frame_recorded(checkpoint.frame):  # killed between checkpoint and record
         output.write_frame(checkpoint.frame, _frame_arrays(solver), checkpoint.rows[-1],
                            solver.state_dict())
     return checkpoint.frame
@@ -248,7 +296,8 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
 
     Raises :class:`SceneError` / :class:`InvalidInput` for invalid input (before anything is
     simulated or written), :class:`~fracture_gs.io.lock.FolderBusy` when another run writes the
-    folder, and :class:`SimulationBlowUp` (message naming the frame and time) when the run
+    folder, :class:`~fracture_gs.io.manifest.FolderTaken` when a file the tools did not write is
+    in the way, and :class:`SimulationBlowUp` (message naming the frame and time) when the run
     fails; the frames already written, the CSV, the plot and the checkpoint then stay valid.
     ``progress=None`` shows the tqdm bar only on a terminal.
     """
@@ -271,6 +320,9 @@ def _run_locked(config: SceneConfig, built: BuiltScene, out_dir: str | Path, dev
     output = SimulationOutput(out_dir, built.object_names)
     if resume:
         check_resumable(output, config, built)
+    else:
+        check_scene_not_overwritten(config, output)
+        output.claim(config.frames)
     solver = create_solver(built, device, backend)
     done = _open_run(config, built, output, solver, resume, log)
 

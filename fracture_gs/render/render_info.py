@@ -1,13 +1,18 @@
 """What a ``render.py --sim`` output folder holds: its ``render.json``.
 
-``render.py`` writes the file before the first image: the simulation it rendered (folder, scene
-name, contact mode and :meth:`Simulation.fingerprint`) and whether FPGO was on. Tools that read
-the images (``evaluate.py --renders``) take the run's label from it and refuse the folder when
-it belongs to another simulation or was rendered otherwise than they were asked to score::
+``render.py`` writes the file before the first image and again when the last is written: the
+simulation it rendered (folder, scene name, contact mode, :meth:`Simulation.fingerprint` and the
+id of the run that wrote the frames), whether FPGO was on, the frames and views it renders and
+whether it finished. Tools that read the images (``evaluate.py --renders``) take the run's label
+from it and refuse the folder when it belongs to another simulation or run, was rendered otherwise
+than they were asked to score, or was interrupted; they read only its frames and views::
 
     {"format": "fracture_gs/render-info-v1", "sim": "/abs/output/sims/two_spheres",
      "simulation": "<sha256>", "scene": "two_spheres", "contact_mode": "collision",
-     "fpgo": true}
+     "fpgo": true, "run": "<run id>", "frames": [0, 1, 2], "views": ["orbit_00"],
+     "complete": true}
+
+Files of older versions lack the last four keys (their run, frames and views are unknown).
 
 Problems reading the file raise :class:`RenderInfoError` with one line naming the folder or file.
 """
@@ -38,12 +43,18 @@ class RenderInfo:
     scene: str              # the scene's name
     contact_mode: str       # the scene's contact.mode
     fpgo: bool              # fracture-surface Gaussians on
+    run: str | None = None            # Simulation.run_id() (None: unknown)
+    frames: list[int] | None = None   # the frames rendered (None: unknown)
+    views: list[str] | None = None    # the views rendered (None: unknown)
+    complete: bool = True             # every image written (False while rendering)
 
     @classmethod
-    def of(cls, sim: Simulation, fpgo: bool) -> "RenderInfo":
-        """The record of rendering ``sim`` with or without FPGO."""
+    def of(cls, sim: Simulation, fpgo: bool, frames: list[int] | None = None,
+           views: list[str] | None = None) -> "RenderInfo":
+        """The record of rendering ``frames`` of ``sim`` from ``views``, with or without FPGO."""
         return cls(sim=str(sim.root.resolve()), simulation=sim.fingerprint(),
-                   scene=sim.scene.name, contact_mode=sim.scene.contact.mode, fpgo=fpgo)
+                   scene=sim.scene.name, contact_mode=sim.scene.contact.mode, fpgo=fpgo,
+                   run=sim.run_id(), frames=frames, views=views)
 
     @property
     def fpgo_text(self) -> str:
@@ -78,9 +89,17 @@ def read_render_info(folder: Path) -> RenderInfo:
     try:
         info = RenderInfo(sim=str(content["sim"]), simulation=str(content["simulation"]),
                           scene=str(content["scene"]), contact_mode=str(content["contact_mode"]),
-                          fpgo=content["fpgo"])
+                          fpgo=content["fpgo"], run=content.get("run"),
+                          frames=content.get("frames"), views=content.get("views"),
+                          complete=content.get("complete", True))
     except KeyError as exc:
         raise RenderInfoError(f"{path}: missing key {exc}") from None
-    if not isinstance(info.fpgo, bool):
-        raise RenderInfoError(f"{path}: 'fpgo' must be true or false")
+    if not isinstance(info.fpgo, bool) or not isinstance(info.complete, bool):
+        raise RenderInfoError(f"{path}: 'fpgo' and 'complete' must be true or false")
+    if not (info.run is None or isinstance(info.run, str)) or \
+            not (info.frames is None or (isinstance(info.frames, list) and
+                                         all(type(f) is int for f in info.frames))) or \
+            not (info.views is None or (isinstance(info.views, list) and
+                                        all(isinstance(v, str) for v in info.views))):
+        raise RenderInfoError(f"{path}: 'run', 'frames' or 'views' is malformed")
     return info

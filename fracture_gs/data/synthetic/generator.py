@@ -12,7 +12,10 @@ Everything is written to ``<out>.partial`` first and renamed at the end, so an i
 leaves no half-written dataset behind. An existing ``out`` is only ever replaced (``--force``)
 when it is a dataset this generator wrote, i.e. a folder with its ``generator.json``; a folder
 holding anything else is refused before any work starts, so ``--out data/ --force`` cannot
-delete ``data/``.
+delete ``data/``; a copy of a dataset (whose copied manifest vouches for nothing,
+:mod:`fracture_gs.io.manifest`) is refused too. One run at a time writes a dataset folder: the
+lock ``<parent>/.<name>.generate.lock`` (:mod:`fracture_gs.io.lock`) is held while a run writes
+``<out>.partial`` and ``<out>``, and removed when it ends.
 """
 from __future__ import annotations
 
@@ -31,13 +34,15 @@ from fracture_gs.data.synthetic.cameras import NERF_CAMERA_ANGLE_X, sphere_poses
 from fracture_gs.data.synthetic.objects import SyntheticObject, build_object
 from fracture_gs.data.synthetic.render_mitsuba import build_scene, render_view, require_mitsuba
 from fracture_gs.data.synthetic.textures import linear_to_srgb
-from fracture_gs.io.manifest import Manifest
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import MANIFEST_FILE, Manifest
 
 
 GENERATOR_FILE = "generator.json"            # marks a folder as a generated dataset
 GENERATED_NAMES = ("transforms_train.json", "transforms_test.json", "gt_mesh.ply", "parts.json",
                    GENERATOR_FILE)
 PARTIAL_MARKER = ".generator_partial.json"   # marks a staging folder of an unfinished run
+KIND = "dataset"                             # the manifest kind of a generated dataset
 
 
 @dataclass(frozen=True)
@@ -99,6 +104,12 @@ def _check_target(out: str, overwrite: bool) -> None:
         raise FileExistsError(f"{out}: exists and was not written by this generator (no "
                               f"{GENERATOR_FILE}); --force only replaces generated datasets, so "
                               "choose another --out (e.g. a sub-folder) or remove it yourself")
+    manifest = Manifest.load(out)
+    if manifest.foreign or (manifest.exists() and manifest.kind != KIND):
+        raise FileExistsError(f"{out}: its {MANIFEST_FILE} was not written for this folder by "
+                              "the generator (a copied or moved dataset, or one of an older "
+                              "version); --force replaces only a dataset generated here, so "
+                              "choose another --out or remove it yourself")
     if not overwrite:
         raise FileExistsError(f"{out}: already exists (use --force to replace it)")
 
@@ -131,19 +142,20 @@ def _replace_folder(partial: str, out: str, overwrite: bool) -> None:
     new_files = _generated_files(partial)
     if not os.path.lexists(out) or _is_empty_folder(out):
         os.replace(partial, out)  # over an empty folder, too
+        Manifest(out, new_files, KIND).save()   # the manifest names the folder it is in
         return
     Manifest(out, _generated_files(out)).remove_written()
     for name in new_files:
         target = os.path.join(out, name)
         os.makedirs(os.path.dirname(target), exist_ok=True)
         os.replace(os.path.join(partial, name), target)
-    Manifest(out, new_files).save()
+    Manifest(out, new_files, KIND).save()
     shutil.rmtree(partial)
 
 
 def _record_files(folder: str) -> None:
     """Record every file of the finished staging folder in its manifest."""
-    manifest = Manifest(folder)
+    manifest = Manifest(folder, kind=KIND)
     for root, _, names in os.walk(folder):
         manifest.add(*(os.path.join(root, name) for name in names))
     manifest.save()
@@ -159,6 +171,15 @@ def generate_dataset(name: str, out: str, settings: GeneratorSettings = Generato
     settings.validate()
     check_output_folder(out, overwrite)
     require_mitsuba()
+    parent, folder_name = os.path.split(os.path.normpath(os.path.abspath(out)))
+    with folder_lock(parent, f".{folder_name}.generate.lock", "generator", "dataset folder"):
+        check_output_folder(out, overwrite)   # the run that held the lock may have made it
+        return _generate(name, out, settings, overwrite, progress)
+
+
+def _generate(name: str, out: str, settings: GeneratorSettings, overwrite: bool,
+              progress: bool) -> dict:
+    """:func:`generate_dataset` once the folder's lock is held."""
     started = time.perf_counter()
     obj = build_object(name, settings.resolution, settings.seed)
     mesh_seconds = time.perf_counter() - started

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from fracture_gs.config.scene import SceneConfig, parse_scene, read_yaml
+from fracture_gs.io.manifest import FolderTaken
 from fracture_gs.io.sim_layout import SimLayout
 
 
@@ -85,6 +86,8 @@ def run_job(job: SimJob, force: bool = False, threads: int | None = None,
     try:
         run_simulation(parse_scene(job.scene), out_dir, device=torch.device("cpu"),
                        progress=progress, log=log)
+    except FolderTaken:
+        raise   # bad input (a file in the way), not a failed simulation
     except Exception as exc:
         raise RunFailed(f"simulation '{job.name}' ({out_dir}): {exc}") from None
     return JobResult(job.name, job.out_dir, time.perf_counter() - started, False, log.getvalue())

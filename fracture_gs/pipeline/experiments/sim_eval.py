@@ -133,11 +133,39 @@ def check_run(spec: RunSpec) -> Simulation:
                                       "render the simulation again")
             raise EvaluationError(f"{spec.renders}: renders of the simulation {info.sim} (scene "
                                   f"'{info.scene}'), not of {spec.sim}")
+        if info.run is not None and info.run != sim.run_id():
+            raise EvaluationError(f"{spec.renders}: renders of an earlier run in {spec.sim} (the "
+                                  f"run id in its {RENDER_INFO_FILE} is not the simulation's); "
+                                  "render the simulation again")
+        if not info.complete:
+            raise EvaluationError(f"{spec.renders}: the render was interrupted (its "
+                                  f"{RENDER_INFO_FILE}); render the simulation again")
         if info.fpgo != spec.fpgo:
             wanted = "with FPGO" if spec.fpgo else "without FPGO"
             raise EvaluationError(f"{spec.renders}: rendered {info.fpgo_text} (its "
                                   f"{RENDER_INFO_FILE}), but the run '{spec.label}' is {wanted}")
     return sim
+
+
+def check_same_scene(baseline: Simulation, reference: Simulation, option: str = "--mls") -> None:
+    """EvaluationError unless ``baseline`` simulates the scene of ``reference`` (every key but
+    the name and the contact settings, and the same particles)."""
+    from fracture_gs.pipeline.simulate import first_difference
+
+    ignored = ("name", "contact")
+    mine = {k: v for k, v in baseline.scene.to_dict().items() if k not in ignored}
+    theirs = {k: v for k, v in reference.scene.to_dict().items() if k not in ignored}
+    diff = first_difference(mine, theirs)
+    if diff is not None:
+        raise EvaluationError(f"{option} {baseline.root}: not the scene of {reference.root} (its "
+                              f"{SCENE_FILE} differs at '{diff}'); simulate the same scene with "
+                              "contact mode mls")
+    a, b = baseline.particles, reference.particles
+    if a.rest_x.shape != b.rest_x.shape or not np.array_equal(a.rest_x, b.rest_x) or \
+            not np.array_equal(a.obj_id, b.obj_id):
+        raise EvaluationError(f"{option} {baseline.root}: its particles ({PARTICLES_FILE}) are not "
+                              f"those of {reference.root}; simulate the same scene with contact "
+                              "mode mls")
 
 
 def evaluation_views(sim: Simulation, spec: str, resolution: tuple[int, int]) -> list[View]:
@@ -174,9 +202,13 @@ def render_frames(sim: Simulation, views: list[View], frames: list[int], fpgo: b
 
 
 def rendered_view_names(folder: Path) -> list[str]:
-    """View sub-folders of a ``render.py`` output folder (those holding numbered PNGs)."""
+    """The views of a ``render.py`` output folder: those its ``render.json`` names, or (a folder
+    of an older version) the sub-folders holding numbered PNGs."""
     if not folder.is_dir():
         raise EvaluationError(f"{folder}: no such render folder")
+    views = _render_info(folder).views
+    if views is not None:
+        return list(views)
     names = sorted(d.name for d in folder.iterdir()
                    if d.is_dir() and any(_PNG_NAME.match(f.name) for f in d.iterdir()))
     if not names:
@@ -186,7 +218,14 @@ def rendered_view_names(folder: Path) -> list[str]:
 
 
 def read_rendered_frames(folder: Path, view_names: list[str], frames: list[int]) -> np.ndarray:
-    """``(frames, views, H, W, 3)`` uint8 images read from a render.py output folder."""
+    """``(frames, views, H, W, 3)`` uint8 images read from a render.py output folder (only
+    frames its ``render.json`` says it rendered)."""
+    rendered = _render_info(folder).frames
+    outside = [index for index in frames if rendered is not None and index not in rendered]
+    if outside:
+        raise EvaluationError(f"{folder}: frame {outside[0]} was not rendered (its "
+                              f"{RENDER_INFO_FILE} holds frames {_frame_span(rendered)}); render "
+                              f"frame {outside[0]} of every view first")
     images = []
     for index in frames:
         row = []
@@ -201,6 +240,10 @@ def read_rendered_frames(folder: Path, view_names: list[str], frames: list[int])
             raise EvaluationError(f"{folder}: views of frame {index} differ in size")
         images.append(row)
     return np.ascontiguousarray(np.asarray(images, dtype=np.uint8))
+
+
+def _frame_span(frames: list[int]) -> str:
+    return f"{frames[0]}..{frames[-1]}" if frames else "none"
 
 
 def evaluate_run(spec: RunSpec, options: EvalOptions, networks: MetricNetworks,

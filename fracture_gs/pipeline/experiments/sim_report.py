@@ -1,15 +1,22 @@
 """The evaluation folder of one or more runs: ``metrics.json``, ``report.md``, the momentum and
-energy plots of every simulation, and a frame strip (reference frame + window, first view)."""
+energy plots of every simulation, and a frame strip (reference frame + window, first view).
+
+One evaluation at a time writes a folder (its lock ``.evaluate.lock``, :func:`evaluation_folder`);
+it writes only where no file is in the way that the tools did not write there, and replaces the
+files of the earlier evaluation in the folder once the new one is computed."""
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 from fracture_gs.folders.sim_reader import Simulation, SimulationError, load_frame
 from fracture_gs.io.atomic import write_text_atomic
+from fracture_gs.io.lock import folder_lock
+from fracture_gs.io.manifest import claim_folder, replace_written
 from fracture_gs.metrics.pieces import last_frame_pieces, object_pieces
 from fracture_gs.metrics.paired import DEFAULT_CONFIDENCE, paired_differences
 from fracture_gs.metrics.protocol import MetricNetworks
@@ -23,19 +30,49 @@ PAPER_ROWS = [[f"paper: {name}", *(f"{v:g}" for v in values), "—", "paper Fig.
               for name, values in PAPER_ABLATION.items()]
 
 
+LOCK_FILE = ".evaluate.lock"
+KIND = "evaluation"          # the manifest kind of an evaluation folder
+REPORT_FILES = ("metrics.json", "report.md", "strip.png")
+
+
 def _slug(label: str) -> str:
     return "".join(c if c.isalnum() else "_" for c in label.lower()).strip("_") or "run"
 
 
+def _plot_prefix(sim: Path, specs: Sequence[RunSpec]) -> str:
+    """The prefix of a simulation's momentum and energy plots ('' when there is one)."""
+    return "" if len({spec.sim for spec in specs}) == 1 else f"{_slug(sim.name)}_"
+
+
+def report_files(specs: Sequence[RunSpec], out_dir: Path) -> list[Path]:
+    """Every file :func:`evaluate_and_report` may write into ``out_dir``."""
+    plots = [out_dir / f"{_plot_prefix(sim, specs)}{name}"
+             for sim in dict.fromkeys(spec.sim for spec in specs)
+             for name in ("momentum.png", "energy.png")]
+    return [*(out_dir / name for name in REPORT_FILES), *plots]
+
+
+@contextlib.contextmanager
+def evaluation_folder(out_dir: Path, files: Sequence[Path]) -> Iterator[Callable[[], None]]:
+    """Hold ``out_dir``'s lock and claim it for ``files`` (FolderBusy, FolderTaken); yields the
+    call that, once the results are computed, removes the earlier evaluation's files and
+    records ``files`` before they are written."""
+    with folder_lock(out_dir, LOCK_FILE, "evaluate.py", "evaluation folder"):
+        manifest = claim_folder(out_dir, KIND, files)
+        yield lambda: replace_written(manifest, files)
+
+
 def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks: MetricNetworks,
                         out_dir: Path, title: str, with_paper: bool = False,
-                        progress: bool = False) -> dict:
-    """Evaluate every run, write ``out_dir``'s files and return the metrics.json content.
-
-    ``out_dir`` is made only once every run has been evaluated, so a run that cannot be
-    evaluated leaves no empty folder behind."""
+                        progress: bool = False,
+                        before_writing: Callable[[], object] | None = None) -> dict:
+    """Evaluate every run, write ``out_dir``'s files and return the metrics.json content;
+    ``before_writing`` (from :func:`evaluation_folder`) is called once every run is evaluated,
+    before the first file is written."""
     started = time.perf_counter()
     results: list[RunResult] = [evaluate_run(spec, options, networks, progress) for spec in specs]
+    if before_writing is not None:
+        before_writing()
     out_dir.mkdir(parents=True, exist_ok=True)
     runs = [result.to_json() for result in results]
 
@@ -72,7 +109,7 @@ def evaluate_and_report(specs: Sequence[RunSpec], options: EvalOptions, networks
 
     conservation = {}
     for sim in dict.fromkeys(spec.sim for spec in specs):
-        prefix = "" if len({spec.sim for spec in specs}) == 1 else f"{_slug(sim.name)}_"
+        prefix = _plot_prefix(sim, specs)
         momentum_png, energy_png, summary = diagnostics_plots(sim, out_dir, prefix)
         conservation[str(sim)] = summary.to_json()
         sections.append((f"Momentum and energy: `{sim.name}`",
