@@ -434,7 +434,7 @@ def test_simulate_render_evaluate_and_view_keep_what_they_did_not_write(
     pytest.importorskip("viser")
     from fracture_gs.viewer.app import Viewer, ViewerOptions
     from fracture_gs.viewer.sources import SimulationSource
-    from headless_browser import WebsocketProbe
+    from fracture_gs.testing.headless_browser import WebsocketProbe
 
     before = snapshot(sim)
     viewer = Viewer(SimulationSource(sim, torch.device("cpu")),

@@ -3,8 +3,9 @@ behind ``--resume``.
 
 ``particles.npz`` holds mass, rest_volume, obj_id, part_id, material_id, is_surface, rest_x and
 gaussian_index; a frame file x, v, F_E, alpha, damage (float32), fractured (bool) and
-fragment_id (int32); alpha is the material state (NACC's α; for brittle particles their damage
-d, as in ``damage``, which is 0 elsewhere). ``diagnostics.csv`` has the columns of
+fragment_id (int32); alpha is state field 0 of each particle's material model (NACC's α; for
+brittle particles their damage d, as in ``damage``, which is 0 elsewhere). ``diagnostics.csv`` has
+the columns of
 :func:`diagnostics_columns`.
 
 Every file is written to a temporary name in the same folder and renamed into place, so a
