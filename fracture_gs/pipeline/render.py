@@ -148,8 +148,7 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
     _record_outputs(out_dir, names, frames, options.export_ply)
     write_render_info(out_dir, RenderInfo.of(sim, options.fpgo))
 
-    videos = {view.name: Mp4Writer(_video_path(out_dir, view.name), view.camera.width,
-                                   view.camera.height, options.fps) for view in views}
+    videos: dict[str, Mp4Writer] = {}
     preview_frames: list[np.ndarray] = []
     rows: list[dict[str, float]] = []
     loader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-loader")
@@ -159,6 +158,9 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
                disable=None if progress is None else not progress, dynamic_ncols=True)
     completed = False
     try:
+        for view in views:
+            videos[view.name] = Mp4Writer(_video_path(out_dir, view.name), view.camera.width,
+                                          view.camera.height, options.fps)
         upcoming = loader.submit(sim.load_frame, frames[0], device)
         for position, frame_index in enumerate(frames):
             tick = time.perf_counter()
