@@ -2,8 +2,9 @@
 the formulas: docs/formulas.md §2–§10).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: <key path or file>: <problem>``
-line on stderr, nothing simulated: bad scene keys, unreadable files, a grid too large for the
-memory, an ``--out`` that is a file, a damaged run for ``--resume``), 1 when the run fails
+line on stderr, nothing simulated: bad scene keys or numbers out of their range, unreadable
+files, a grid too large for the memory, a scene that would take more than 1e8 substeps, an
+``--out`` that is a file, a damaged run for ``--resume``), 1 when the run fails
 (blow-up, out of memory, a write error; the frames written so far stay valid and
 ``--resume``-able), 130 when interrupted.
 """

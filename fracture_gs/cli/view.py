@@ -45,7 +45,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--grace", type=float, default=10.0,
                         help="seconds without a browser before the viewer exits (default 10)")
     parser.add_argument("--fps", type=float, default=10.0, help="initial playback speed in "
-                        "frames per second (default 10)")
+                        f"frames per second, {bounds.FPS[0]:g} to {bounds.FPS[1]:g} (default 10)")
     parser.add_argument("--frame", type=int, default=None, help="frame shown first")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false",
                         help="start with FPGO off (the GUI toggles it)")

@@ -33,7 +33,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--n-test", type=int, default=20)
     parser.add_argument("--spp", type=int, default=16,
                         help="samples per pixel (multi-jittered; a square like 16 or 25 is exact)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="0 to 2^64 - 1 (default 0)")
     parser.add_argument("--grid", type=int, default=256,
                         help="marching-cubes cells along the object's longest side")
     parser.add_argument("--force", action="store_true",
