@@ -381,6 +381,16 @@ def test_speeds_moduli_gravity_and_softening_out_of_range_are_refused(where: str
     assert refusal(scene) == f"{key}: {problem}"
 
 
+def test_simulate_frames_option_has_the_scene_keys_range(tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(yaml.safe_dump(brittle_sphere()))
+    out = tmp_path / "sim"
+    assert simulate_cli.main(["--scene", str(scene), "--out", str(out), "--frames", "1000001"]) == 2
+    assert one_error_line(capsys) == "error: --frames: 1000001 is not <= 1000000"
+    assert not out.exists()
+
+
 def test_a_velocity_out_of_range_stops_simulate_with_one_line(tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     scene = brittle_sphere()

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from fracture_gs import bounds
 from fracture_gs.config.scene import SceneError, load_scene
 from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
@@ -61,6 +62,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.frames is not None and args.frames < 1:
             raise InvalidInput("--frames", f"{args.frames} is not >= 1")
+        if args.frames is not None and args.frames > bounds.FRAMES_MAX:
+            raise InvalidInput("--frames", f"{args.frames} is not <= {bounds.FRAMES_MAX}")
         config = load_scene(args.scene)
         if args.frames is not None:
             config = replace(config, frames=args.frames)

@@ -33,10 +33,6 @@ class SubstepEstimate:
     substeps: float       # frames × frame_dt / dt
     per_frame: float      # frame_dt / dt
 
-    @property
-    def duration(self) -> float:
-        return self.substeps * self.dt
-
 
 def estimate_substeps(config: SceneConfig, built: BuiltScene) -> SubstepEstimate:
     """The first CFL step of the built scene and how many such steps its frames take."""
