@@ -14,6 +14,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+NAME_RULE = "letters, digits, '_', '-', '.'; no spaces or slashes"
 
 
 class SceneError(ValueError):
@@ -81,16 +82,21 @@ def absent(keypath: str, default: Any) -> Any:
 
 def number(data: Mapping[str, Any], key: str, path: str, default: Any = MISSING, *,
             gt: float | None = None, ge: float | None = None,
-            lt: float | None = None, le: float | None = None) -> float:
+            lt: float | None = None, le: float | None = None,
+            within: tuple[float, float] | None = None, off: float | None = None) -> float:
+    """The number at ``key`` (``default`` when absent): ``gt`` ... ``le`` are checked first,
+    then the range ``within`` (the value's documented bounds, ``bounds.py``), which the value
+    ``off`` may skip (``weibull_m: 0`` turns the Weibull scatter off)."""
     keypath = join(path, key)
     if key not in data:
         return absent(keypath, default)
-    return check_number(data[key], keypath, gt=gt, ge=ge, lt=lt, le=le)
+    return check_number(data[key], keypath, gt=gt, ge=ge, lt=lt, le=le, within=within, off=off)
 
 
 def check_number(value: Any, keypath: str, *, gt: float | None = None,
                   ge: float | None = None, lt: float | None = None,
-                  le: float | None = None) -> float:
+                  le: float | None = None, within: tuple[float, float] | None = None,
+                  off: float | None = None) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise SceneError(keypath, f"expected a number, got {type_name(value)}")
     if not math.isfinite(value):
@@ -103,6 +109,10 @@ def check_number(value: Any, keypath: str, *, gt: float | None = None,
         raise SceneError(keypath, f"{fmt(value)} is not < {fmt(lt)}")
     if le is not None and not value <= le:
         raise SceneError(keypath, f"{fmt(value)} is not <= {fmt(le)}")
+    if within is not None and not within[0] <= value <= within[1] and value != off:
+        unless = f" (nor exactly {fmt(float(off))})" if off is not None else ""
+        raise SceneError(keypath, f"{fmt(float(value))} is not within [{fmt(float(within[0]))}, "
+                                  f"{fmt(float(within[1]))}]{unless}")
     return float(value)
 
 
@@ -117,7 +127,7 @@ def boolean(data: Mapping[str, Any], key: str, path: str, default: Any = MISSING
 
 
 def integer(data: Mapping[str, Any], key: str, path: str, default: Any = MISSING, *,
-             ge: int | None = None) -> int:
+             ge: int | None = None, le: int | None = None) -> int:
     keypath = join(path, key)
     if key not in data:
         return absent(keypath, default)
@@ -128,18 +138,21 @@ def integer(data: Mapping[str, Any], key: str, path: str, default: Any = MISSING
         raise SceneError(keypath, f"expected an integer, got {type_name(value)}")
     if ge is not None and value < ge:
         raise SceneError(keypath, f"{value} is not >= {ge}")
+    if le is not None and value > le:
+        raise SceneError(keypath, f"{value} is not <= {le}")
     return value
 
 
 def vec3(data: Mapping[str, Any], key: str, path: str,
-          default: Any = MISSING, *, gt: float | None = None) -> tuple[float, float, float]:
+          default: Any = MISSING, *, gt: float | None = None,
+          within: tuple[float, float] | None = None) -> tuple[float, float, float]:
     keypath = join(path, key)
     if key not in data:
         return absent(keypath, default)
     value = data[key]
     if not isinstance(value, list) or len(value) != 3:
         raise SceneError(keypath, f"expected a list of 3 numbers, got {type_name(value)}")
-    return tuple(check_number(v, f"{keypath}[{i}]", gt=gt)  # type: ignore[return-value]
+    return tuple(check_number(v, f"{keypath}[{i}]", gt=gt, within=within)  # type: ignore[return-value]
                  for i, v in enumerate(value))
 
 
@@ -166,6 +179,5 @@ def listing(data: Mapping[str, Any], key: str, path: str, default: Any = MISSING
 
 def name(value: Any, keypath: str) -> str:
     if not isinstance(value, str) or not NAME_PATTERN.match(value):
-        raise SceneError(keypath, f"{fmt(value)} is not a valid name "
-                                  "(letters, digits, '_', '-', '.'; no spaces or slashes)")
+        raise SceneError(keypath, f"{fmt(value)} is not a valid name ({NAME_RULE})")
     return value

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from fracture_gs import bounds
 from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
@@ -58,7 +59,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                         help="compiled kernels (cpp), PyTorch reference, or auto")
     parser.add_argument("--out", default=None,
                         help="output folder (default <sim>/renders or <sim>/renders_nofpgo)")
-    parser.add_argument("--fps", type=float, default=30.0, help="video frame rate (default 30)")
+    parser.add_argument("--fps", type=float, default=30.0,
+                        help=f"video frame rate, {bounds.FPS[0]:g} to {bounds.FPS[1]:g} (default 30)")
     parser.add_argument("--preview-view", default=None,
                         help="view of preview.gif (default: the first)")
     defaults = FPGOSettings()
@@ -103,8 +105,8 @@ def options_from_args(args: argparse.Namespace) -> RenderOptions:
             check_image_size(*args.resolution, "--resolution")
         except ViewSpecError as exc:
             raise InvalidInput(str(exc)) from None
-    if not args.fps > 0:
-        raise InvalidInput(f"--fps {args.fps}: must be > 0")
+    if not bounds.FPS[0] <= args.fps <= bounds.FPS[1]:
+        raise InvalidInput(f"--fps {args.fps:g}: must be within [{bounds.FPS[0]:g}, {bounds.FPS[1]:g}]")
     try:
         settings = FPGOSettings(dc_factor=args.dc_factor, k_neighbours=args.k_neighbours,
                                 k_sigma=args.k_sigma, min_fragment=args.min_fragment,

@@ -2,9 +2,10 @@
 the formulas: docs/formulas.md §2–§10).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: <key path or file>: <problem>``
-line on stderr, nothing simulated: bad scene keys, unreadable files, a grid too large for the
-memory, an ``--out`` that is a file or holds files the tools did not write there, the scene
-file's own folder, a damaged run for ``--resume``), 1 when the run fails
+line on stderr, nothing simulated: bad scene keys or numbers out of their range, unreadable
+files, a grid too large for the memory, a scene that would take more than 1e8 substeps, an
+``--out`` that is a file or holds files the tools did not write there, the scene file's own
+folder, a damaged run for ``--resume``), 1 when the run fails
 (blow-up, out of memory, a write error; the frames written so far stay valid and
 ``--resume``-able), 130 when interrupted.
 """
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from fracture_gs import bounds
 from fracture_gs.config.scene import SceneError, load_scene
 from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
@@ -62,6 +64,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.frames is not None and args.frames < 1:
             raise InvalidInput("--frames", f"{args.frames} is not >= 1")
+        if args.frames is not None and args.frames > bounds.FRAMES_MAX:
+            raise InvalidInput("--frames", f"{args.frames} is not <= {bounds.FRAMES_MAX}")
         config = load_scene(args.scene)
         if args.frames is not None:
             config = replace(config, frames=args.frames)

@@ -2,8 +2,9 @@
 reconstruct an object from posed, masked images (docs/training.md).
 
 Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line on stderr naming the
-file or flag, nothing left half-written in the model folder), 130 when interrupted (the last
-checkpoint stays usable with ``--start_checkpoint``).
+file or flag, nothing left half-written in the model folder), 1 when a write fails (a full disk;
+the line names the file), 130 when interrupted (the last checkpoint stays usable with
+``--start_checkpoint``).
 """
 from __future__ import annotations
 
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--sdf-rays", type=int, default=1024,
                         help="rays per SDF refinement iteration (default 1024)")
     parser.add_argument("--device", choices=DEVICE_CHOICES, default="cpu")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="0 to 2^64 - 1 (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser
 

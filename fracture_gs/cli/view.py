@@ -22,6 +22,7 @@ import sys
 import threading
 from collections.abc import Sequence
 
+from fracture_gs import bounds
 from fracture_gs.cli.render import InvalidInput
 from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
@@ -44,7 +45,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--grace", type=float, default=10.0,
                         help="seconds without a browser before the viewer exits (default 10)")
     parser.add_argument("--fps", type=float, default=10.0, help="initial playback speed in "
-                        "frames per second (default 10)")
+                        f"frames per second, {bounds.FPS[0]:g} to {bounds.FPS[1]:g} (default 10)")
     parser.add_argument("--frame", type=int, default=None, help="frame shown first")
     parser.add_argument("--no-fpgo", dest="fpgo", action="store_false",
                         help="start with FPGO off (the GUI toggles it)")
@@ -64,8 +65,8 @@ def _checked(args: argparse.Namespace) -> None:
         raise InvalidInput(f"--port {args.port}: must be 0..65535")
     if not args.grace >= 0:
         raise InvalidInput(f"--grace {args.grace}: must be >= 0")
-    if not args.fps > 0:
-        raise InvalidInput(f"--fps {args.fps}: must be > 0")
+    if not bounds.FPS[0] <= args.fps <= bounds.FPS[1]:
+        raise InvalidInput(f"--fps {args.fps:g}: must be within [{bounds.FPS[0]:g}, {bounds.FPS[1]:g}]")
     if args.cache_frames < 1:
         raise InvalidInput(f"--cache-frames {args.cache_frames}: must be >= 1")
     if importlib.util.find_spec("viser") is None:

@@ -33,9 +33,10 @@ from typing import Any, Literal
 
 import yaml
 
+from fracture_gs import bounds
 from fracture_gs.io.model_layout import PARTICLES_FILE
 from fracture_gs.materials import Material, material_from_yaml
-from fracture_gs.keys import SceneError
+from fracture_gs.keys import NAME_PATTERN, NAME_RULE, SceneError
 from fracture_gs.keys import boolean as _boolean
 from fracture_gs.keys import check_keys as _check_keys
 from fracture_gs.keys import check_number as _check_number
@@ -287,6 +288,9 @@ def read_yaml(path: str | os.PathLike[str]) -> Any:
         where = f" at line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise SceneError(str(path), f"invalid YAML{where}: {problem}") from None
+    except RecursionError:  # the parser recurses once per level of '[' / '{' / indentation
+        raise SceneError(str(path), "invalid YAML: lists or mappings nested too deeply "
+                                    "(hundreds of levels)") from None
 
 
 def load_scene(path: str | os.PathLike[str]) -> SceneConfig:
@@ -317,16 +321,16 @@ def parse_scene(data: Any, *, base_dir: str | os.PathLike[str] | None = None,
     if "name" in data:
         name = _name(data["name"], "name")
     elif default_name is not None:
-        name = _name(default_name, "name")
+        name = _default_name(default_name, source)
     else:
         raise SceneError("name", "required key is missing")
     domain = _parse_domain(data["domain"])
-    frames = _integer(data, "frames", "", DEFAULT_FRAMES, ge=1)
-    frame_dt = _number(data, "frame_dt", "", DEFAULT_FRAME_DT, gt=0.0)
-    gravity = _vec3(data, "gravity", "", DEFAULT_GRAVITY)
+    frames = _integer(data, "frames", "", DEFAULT_FRAMES, ge=1, le=bounds.FRAMES_MAX)
+    frame_dt = _number(data, "frame_dt", "", DEFAULT_FRAME_DT, gt=0.0, within=bounds.FRAME_DT)
+    gravity = _vec3(data, "gravity", "", DEFAULT_GRAVITY, within=bounds.GRAVITY)
     contact = _parse_contact(data.get("contact", {}))
     cfl = _number(data, "cfl", "", DEFAULT_CFL, gt=0.0, le=1.0)
-    seed = _integer(data, "seed", "", 0, ge=0)
+    seed = _integer(data, "seed", "", 0, ge=0, le=bounds.SEED_MAX)
     boundaries = _parse_boundaries(_list(data, "boundaries", "", [{"type": "box"}]), domain)
     raw_objects = _list(data, "objects", "")
     if not raw_objects:
@@ -342,6 +346,17 @@ def parse_scene(data: Any, *, base_dir: str | os.PathLike[str] | None = None,
     return SceneConfig(name=name, domain=domain, objects=objects, frames=frames,
                        frame_dt=frame_dt, gravity=gravity, contact=contact, cfl=cfl,
                        boundaries=boundaries, seed=seed, source=source)
+
+
+def _default_name(default_name: str, source: Path | None) -> str:
+    """The scene's name taken from its file name; an error that says what to do when the file
+    name is not a valid name."""
+    if NAME_PATTERN.match(default_name):
+        return default_name
+    raise SceneError(str(source) if source is not None else "name",
+                     f"the scene has no 'name' key and its file name {_fmt(default_name)} is not "
+                     f"a valid name ({NAME_RULE}); add a 'name:' line to the scene or rename "
+                     "the file")
 
 
 def _parse_domain(value: Any) -> DomainConfig:
@@ -405,9 +420,11 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
     primitive = _parse_primitive(data["primitive"], f"{path}.primitive") if has_primitive \
         else None
     transform = _parse_transform(data.get("transform", {}), f"{path}.transform")
-    velocity = _vec3(data, "velocity", path, (0.0, 0.0, 0.0))
-    angular_velocity = _vec3(data, "angular_velocity", path, (0.0, 0.0, 0.0))
-    velocity_gradient = _matrix3(data, "velocity_gradient", path, ((0.0, 0.0, 0.0),) * 3)
+    velocity = _vec3(data, "velocity", path, (0.0, 0.0, 0.0), within=bounds.VELOCITY)
+    angular_velocity = _vec3(data, "angular_velocity", path, (0.0, 0.0, 0.0),
+                             within=bounds.ANGULAR_VELOCITY)
+    velocity_gradient = _matrix3(data, "velocity_gradient", path, ((0.0, 0.0, 0.0),) * 3,
+                                 within=bounds.VELOCITY_GRADIENT)
     raw_materials = _list(data, "materials", path)
     if not raw_materials:
         raise SceneError(f"{path}.materials", "at least one material is required")
@@ -426,8 +443,9 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
 
 
 def _matrix3(data: Mapping[str, Any], key: str, path: str,
-             default: tuple[tuple[float, float, float], ...]) -> tuple[tuple[float, float, float], ...]:
-    """A 3×3 matrix given as a list of 3 rows of 3 numbers."""
+             default: tuple[tuple[float, float, float], ...],
+             within: tuple[float, float]) -> tuple[tuple[float, float, float], ...]:
+    """A 3×3 matrix given as a list of 3 rows of 3 numbers, each ``within`` its bounds."""
     keypath = _join(path, key)
     if key not in data:
         return default
@@ -438,7 +456,8 @@ def _matrix3(data: Mapping[str, Any], key: str, path: str,
     for i, row in enumerate(value):
         if len(row) != 3:
             raise SceneError(f"{keypath}[{i}]", f"expected a row of 3 numbers, got {len(row)} entries")
-        rows.append(tuple(_check_number(v, f"{keypath}[{i}][{j}]") for j, v in enumerate(row)))
+        rows.append(tuple(_check_number(v, f"{keypath}[{i}][{j}]", within=within)
+                          for j, v in enumerate(row)))
     return tuple(rows)  # type: ignore[return-value]
 
 

@@ -55,6 +55,8 @@ def read_json(path: str, error: Callable[[str], Exception] = DatasetError) -> ob
         return json.loads(text)
     except json.JSONDecodeError as exc:
         raise error(f"{path}: invalid JSON: {exc}") from None
+    except RecursionError:
+        raise error(f"{path}: invalid JSON: lists or objects nested too deeply") from None
 
 
 def read_npz(path: str) -> dict[str, np.ndarray]:

@@ -28,6 +28,7 @@ from typing import Any, Mapping, Sequence, Union
 import numpy as np
 
 from fracture_gs.data.files import read_json
+from fracture_gs.io.output_folder import naming_file
 
 PARTS_FORMAT = "fracture_gs/parts-v1"
 
@@ -188,7 +189,7 @@ def save_part_spec(spec: PartSpec, path: str | os.PathLike,
     content = spec.to_dict()
     if extra:
         content.update({key: value for key, value in extra.items() if key not in content})
-    with open(os.fspath(path), "w", encoding="utf-8") as handle:
+    with naming_file(path), open(os.fspath(path), "w", encoding="utf-8") as handle:
         json.dump(content, handle, indent=2)
         handle.write("\n")
 

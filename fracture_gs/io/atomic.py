@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from fracture_gs.io.output_folder import naming_file
+
 TEMPORARY_GLOB = ".*.tmp*"   # the names temporary_beside makes
 
 
@@ -49,13 +51,16 @@ def discard(temporary: Path) -> None:
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path to write ``path``'s content to; it replaces ``path`` when the
-    block ends without an exception and is removed otherwise."""
-    temporary = temporary_beside(path)
-    try:
-        yield temporary
-        commit(temporary, path)
-    finally:
-        discard(temporary)
+    block ends without an exception and is removed otherwise. An ``OSError`` that names no file
+    (a full disk) or the temporary one is raised naming ``path``."""
+    with naming_file(path):
+        temporary = temporary_beside(path)
+    with naming_file(path, temporary):
+        try:
+            yield temporary
+            commit(temporary, path)
+        finally:
+            discard(temporary)
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[io.BufferedWriter], None]) -> None:

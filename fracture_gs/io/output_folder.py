@@ -3,12 +3,15 @@
 A folder that cannot be made or written (a parent that is a file, a read-only or missing mount,
 ``/proc``) is bad input: every tool reports it as one ``error: ...`` line with exit status 2
 before it loads data or simulates, instead of a traceback minutes later. Errors while writing
-later on (a full disk) are ordinary ``OSError``s, reported by :func:`os_error_line`.
+later on (a full disk) are ordinary ``OSError``s that name their file (:func:`naming_file`),
+reported by :func:`os_error_line`.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 
@@ -68,6 +71,20 @@ def _make_writable_folder(folder: Path, option: str) -> None:
     except OSError as exc:
         raise OutputFolderError(option, f"'{folder}' cannot be written "
                                          f"({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
+def naming_file(path: str | os.PathLike, *aliases: str | os.PathLike) -> Iterator[None]:
+    """Re-raise an ``OSError`` of the block that names no file, or names one of ``aliases`` (a
+    temporary file written for ``path``), as one that names ``path``. A write that fails on a
+    full disk says only "No space left on device"; the message then says which file it was."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno is None or (exc.filename is not None and
+                                 os.fspath(exc.filename) not in map(os.fspath, aliases)):
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), os.fspath(path)) from exc
 
 
 def os_error_line(exc: OSError) -> str:

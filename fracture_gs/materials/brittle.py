@@ -37,7 +37,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from fracture_gs import keys
+from fracture_gs import bounds, keys
 from fracture_gs.materials.hencky import ELASTIC_KEYS, compose, hencky_strain, proper_svd, require
 from fracture_gs.materials.model import MaterialModel, SubstepView, field, parameter
 
@@ -152,7 +152,8 @@ class BrittleMaterial(MaterialModel):
         self._validate_elasticity()
         require(owner, "strength", self.strength, self.strength > 0, "> 0")
         require(owner, "fracture_energy", self.fracture_energy, self.fracture_energy > 0, "> 0")
-        require(owner, "weibull_m", self.weibull_m, self.weibull_m >= 0, ">= 0")
+        require(owner, "weibull_m", self.weibull_m, self.weibull_m == 0 or self.weibull_m >= bounds.WEIBULL_M[0],
+                f"0 or >= {bounds.WEIBULL_M[0]:g}")
         require(owner, "residual", self.residual, 0.0 <= self.residual < 1.0, "in [0, 1)")
         require(owner, "fracture_damage", self.fracture_damage, 0.0 < self.fracture_damage <= 1.0, "in (0, 1]")
 
@@ -162,9 +163,10 @@ class BrittleMaterial(MaterialModel):
         keys.check_keys(data, path, cls.yaml_keys,
                         required=ELASTIC_KEYS + ("strength", "fracture_energy"))
         return cls(**cls.elasticity_from_yaml(data, path),
-                   strength=keys.number(data, "strength", path, gt=0.0),
-                   fracture_energy=keys.number(data, "fracture_energy", path, gt=0.0),
-                   weibull_m=keys.number(data, "weibull_m", path, DEFAULT_WEIBULL_M, ge=0.0),
+                   strength=keys.number(data, "strength", path, gt=0.0, within=bounds.STRENGTH),
+                   fracture_energy=keys.number(data, "fracture_energy", path, gt=0.0, within=bounds.FRACTURE_ENERGY),
+                   weibull_m=keys.number(data, "weibull_m", path, DEFAULT_WEIBULL_M, ge=0.0, within=bounds.WEIBULL_M,
+                                         off=0.0),
                    residual=keys.number(data, "residual", path, DEFAULT_RESIDUAL, ge=0.0, lt=1.0),
                    fracture_damage=keys.number(data, "fracture_damage", path, DEFAULT_FRACTURE_DAMAGE, gt=0.0,
                                                le=1.0))

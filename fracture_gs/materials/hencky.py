@@ -15,7 +15,7 @@ from typing import Any
 
 import torch
 
-from fracture_gs import keys
+from fracture_gs import bounds, keys
 
 MIN_SINGULAR_VALUE = 1e-4   # σ clamp of the Hencky strain
 ELASTIC_KEYS = ("E", "nu", "density")
@@ -125,9 +125,9 @@ class HenckyElasticity:
     @staticmethod
     def elasticity_from_yaml(data: Any, path: str) -> dict[str, float]:
         """E, nu and density of a material mapping (key-path errors)."""
-        return {"E": keys.number(data, "E", path, gt=0.0),
+        return {"E": keys.number(data, "E", path, gt=0.0, within=bounds.YOUNGS_MODULUS),
                 "nu": keys.number(data, "nu", path, ge=0.0, lt=0.5),
-                "density": keys.number(data, "density", path, gt=0.0)}
+                "density": keys.number(data, "density", path, gt=0.0, within=bounds.DENSITY)}
 
     @property
     def mu(self) -> float:

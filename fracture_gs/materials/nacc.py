@@ -15,7 +15,7 @@ import torch
 
 import numpy as np
 
-from fracture_gs import keys
+from fracture_gs import bounds, keys
 from fracture_gs.materials.hencky import (ELASTIC_KEYS, as_float_tensor, compose, energy_density_reference,
                                           hencky_strain, kirchhoff_from_strain, proper_svd, require)
 from fracture_gs.materials.model import MaterialModel, parameter
@@ -155,17 +155,18 @@ class NACCMaterial(MaterialModel):
         if "alpha0" not in data and "Jp0" not in data:
             raise keys.SceneError(f"{path}.alpha0", "required key is missing (give 'alpha0' or 'Jp0')")
         if "alpha0" in data:
-            alpha0 = keys.number(data, "alpha0", path)
+            alpha0 = keys.number(data, "alpha0", path, within=bounds.NACC_ALPHA0)
         else:
-            alpha0 = math.log(keys.number(data, "Jp0", path, gt=0.0))
+            alpha0 = math.log(keys.number(data, "Jp0", path, gt=0.0, within=bounds.NACC_JP0))
         if "M" in data and "friction_angle" in data:
             raise keys.SceneError(f"{path}.M", "give at most one of 'M' and 'friction_angle' (both given)")
         if "friction_angle" in data:
             M = friction_angle_to_M(keys.number(data, "friction_angle", path, gt=0.0, lt=90.0))
         else:
-            M = keys.number(data, "M", path, DEFAULT_M, gt=0.0)
-        return cls(**elasticity, alpha0=alpha0, beta=keys.number(data, "beta", path, DEFAULT_BETA, ge=0.0),
-                   xi=keys.number(data, "xi", path, DEFAULT_XI, ge=0.0), M=M,
+            M = keys.number(data, "M", path, DEFAULT_M, gt=0.0, within=bounds.NACC_M)
+        return cls(**elasticity, alpha0=alpha0,
+                   beta=keys.number(data, "beta", path, DEFAULT_BETA, ge=0.0, within=bounds.NACC_BETA),
+                   xi=keys.number(data, "xi", path, DEFAULT_XI, ge=0.0, within=bounds.NACC_XI), M=M,
                    alpha_threshold=keys.number(data, "alpha_threshold", path, 0.0))
 
     def to_yaml(self) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from fracture_gs import keys
+from fracture_gs import bounds, keys
 
 PRESET_FOLDER = Path(__file__).resolve().parents[2] / "configs" / "materials"
 SOFTENED_KEYS = {"E": 1.0, "strength": 0.5}   # key -> exponent p: value / k^p
@@ -110,6 +110,7 @@ def expand(data: Mapping[str, Any], path: str) -> Mapping[str, Any]:
     if "softening" in data:
         if not preset.real:
             raise keys.SceneError(f"{path}.softening", f"preset {name!r} has no real values to soften")
-        base = {**base, **softened(preset.real, keys.number(data, "softening", path, ge=1.0))}
+        base = {**base, **softened(preset.real, keys.number(data, "softening", path, ge=1.0,
+                                                            within=bounds.SOFTENING))}
     overrides = {key: value for key, value in data.items() if key not in ("preset", "softening")}
     return {"model": preset.model, **base, **overrides}

@@ -171,8 +171,7 @@ def _render_locked(options: RenderOptions, sim: Simulation, frames: list[int], v
     info = RenderInfo.of(sim, options.fpgo, frames=frames, views=names)
     write_render_info(out_dir, replace(info, complete=False))
 
-    videos = {view.name: Mp4Writer(_video_path(out_dir, view.name), view.camera.width,
-                                   view.camera.height, options.fps) for view in views}
+    videos: dict[str, Mp4Writer] = {}
     preview_frames: list[np.ndarray] = []
     rows: list[dict[str, float]] = []
     loader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frame-loader")
@@ -182,6 +181,9 @@ def _render_locked(options: RenderOptions, sim: Simulation, frames: list[int], v
                disable=None if progress is None else not progress, dynamic_ncols=True)
     completed = False
     try:
+        for view in views:
+            videos[view.name] = Mp4Writer(_video_path(out_dir, view.name), view.camera.width,
+                                          view.camera.height, options.fps)
         upcoming = loader.submit(sim.load_frame, frames[0], device)
         for position, frame_index in enumerate(frames):
             tick = time.perf_counter()

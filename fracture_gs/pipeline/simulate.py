@@ -30,6 +30,7 @@ from fracture_gs.io.sim_layout import LOCK_FILE
 from fracture_gs.mpm.memory import check_scene_memory
 from fracture_gs.mpm.scene import BuiltScene, build_scene
 from fracture_gs.mpm.snapshot import frame_arrays, particle_arrays
+from fracture_gs.mpm.substeps import check_substeps
 from fracture_gs.mpm.types import SimulationBlowUp
 
 DEFAULT_OUTPUT_ROOT = Path("output") / "sims"
@@ -306,6 +307,7 @@ def run_simulation(config: SceneConfig, out_dir: str | Path, *, device: torch.de
     check_backend(device, backend)
     check_scene_memory(config, device)
     built = build_scene(config, device)
+    check_substeps(config, built)
     for warning in built.warnings:
         print(f"warning: {warning}", file=sys.stderr)
     with folder_lock(out_dir, LOCK_FILE, "simulate.py", "simulation folder"):

@@ -19,6 +19,7 @@ import torch
 import trimesh
 from tqdm import tqdm
 
+from fracture_gs.bounds import SEED_MAX
 from fracture_gs.data import Dataset, DatasetError, load_dataset
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
 from fracture_gs.folders import model_folder
@@ -197,7 +198,8 @@ def check_config(config: TrainConfig) -> None:
               ("-r", config.resolution == -1 or config.resolution >= 1, "must be >= 1 or -1"),
               ("--feature_lr", config.feature_lr > 0, "must be > 0"),
               ("--opacity_lr", config.opacity_lr > 0, "must be > 0"),
-              ("--scaling_lr", config.scaling_lr > 0, "must be > 0")]
+              ("--scaling_lr", config.scaling_lr > 0, "must be > 0"),
+              ("--seed", 0 <= config.seed <= SEED_MAX, f"must be within [0, {SEED_MAX}]")]
     for flag, ok, problem in checks:
         if not ok:
             raise ReconstructionError(f"{flag}: {getattr(config, _attribute(flag))} {problem}")

@@ -42,11 +42,15 @@ class Mp4Writer:
         self.frames = 0
         self._temporary = temporary_beside(path)
         self._size = (width + width % 2, height + height % 2)
-        self._writer = imageio_ffmpeg.write_frames(
-            str(self._temporary), self._size, fps=fps, codec="libx264", pix_fmt_out="yuv420p",
-            quality=8, macro_block_size=2, output_params=["-movflags", "+faststart"],
-            ffmpeg_log_level="error")
-        self._writer.send(None)
+        try:
+            self._writer = imageio_ffmpeg.write_frames(
+                str(self._temporary), self._size, fps=fps, codec="libx264", pix_fmt_out="yuv420p",
+                quality=8, macro_block_size=2, output_params=["-movflags", "+faststart"],
+                ffmpeg_log_level="error")
+            self._writer.send(None)
+        except BaseException:
+            discard(self._temporary)
+            raise
 
     def write(self, image: np.ndarray) -> None:
         """Append an RGB uint8 (H, W, 3) frame."""
@@ -54,7 +58,12 @@ class Mp4Writer:
             raise ValueError(f"{self.path}: frame of {image.shape[1]}x{image.shape[0]}, the video "
                              f"is {self.width}x{self.height}")
         pad = ((0, self._size[1] - self.height), (0, self._size[0] - self.width), (0, 0))
-        self._writer.send(np.ascontiguousarray(np.pad(image, pad, mode="edge")))
+        try:
+            self._writer.send(np.ascontiguousarray(np.pad(image, pad, mode="edge")))
+        except OSError as exc:  # ffmpeg stopped (a full disk): its message runs over many lines
+            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise OSError(exc.errno, f"the video encoder ffmpeg stopped ({reason})",
+                          str(self.path)) from exc
         self.frames += 1
 
     def close(self) -> None:
@@ -63,9 +72,12 @@ class Mp4Writer:
         commit(self._temporary, self.path)
 
     def abort(self) -> None:
-        """Stop without keeping a file."""
+        """Stop without keeping a file (an encoder that fails to stop changes nothing: its
+        output is discarded either way)."""
         try:
             self._writer.close()
+        except (OSError, RuntimeError, ValueError):
+            pass
         finally:
             discard(self._temporary)
 

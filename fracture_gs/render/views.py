@@ -106,7 +106,7 @@ def cameras_from_json(path: str | Path, size: tuple[int, int] | None = None) -> 
         entries = json.loads(path.read_text())
     except FileNotFoundError:
         raise ViewSpecError(f"{path}: file not found") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:
         raise ViewSpecError(f"{path}: not a readable JSON file ({type(exc).__name__})") from None
     if not isinstance(entries, list) or not entries:
         raise ViewSpecError(f"{path}: expected a non-empty list of cameras (3DGS cameras.json)")

@@ -1,4 +1,10 @@
-"""``python -m fracture_gs.data.synthetic --object teapot --out data/teapot``."""
+"""``python -m fracture_gs.data.synthetic --object teapot --out data/teapot``.
+
+Exit status: 0 on success, 2 on invalid input (one ``error: ...`` line naming the option or the
+folder: a setting out of range, an ``--out`` that may not be replaced or cannot be made), 1 when
+the run fails (a write error such as a full disk, naming the file; nothing half-written is left),
+130 when interrupted.
+"""
 from __future__ import annotations
 
 import argparse
@@ -27,7 +33,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--n-test", type=int, default=20)
     parser.add_argument("--spp", type=int, default=16,
                         help="samples per pixel (multi-jittered; a square like 16 or 25 is exact)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="0 to 2^64 - 1 (default 0)")
     parser.add_argument("--grid", type=int, default=256,
                         help="marching-cubes cells along the object's longest side")
     parser.add_argument("--force", action="store_true",
@@ -56,9 +62,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
-    except OSError as error:  # e.g. the staging folder <out>.partial cannot be made
-        print(f"error: {os_error_line(error)}", file=sys.stderr)
+    except FileExistsError as error:  # an --out that this run may not replace
+        print(f"error: {error}", file=sys.stderr)
         return 2
+    except OSError as error:  # writing the dataset failed (disk full, folder removed, ...)
+        print(f"error: {os_error_line(error)}", file=sys.stderr)
+        return 1
     except (ValueError, RuntimeError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

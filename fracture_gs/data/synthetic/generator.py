@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
+from fracture_gs.bounds import SEED_MAX
 from fracture_gs.data.parts import save_part_spec
 from fracture_gs.data.synthetic import writer
 from fracture_gs.data.synthetic.cameras import NERF_CAMERA_ANGLE_X, sphere_poses
@@ -36,6 +37,7 @@ from fracture_gs.data.synthetic.render_mitsuba import build_scene, render_view, 
 from fracture_gs.data.synthetic.textures import linear_to_srgb
 from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.manifest import MANIFEST_FILE, Manifest
+from fracture_gs.io.output_folder import OutputFolderError
 
 
 GENERATOR_FILE = "generator.json"            # marks a folder as a generated dataset
@@ -62,6 +64,12 @@ class GeneratorSettings:
         for option, ok in checks.items():
             if not ok:
                 raise ValueError(f"{option}: value out of range ({self})")
+        if not 0 <= self.seed <= SEED_MAX:
+            raise ValueError(f"--seed: {self.seed} is not within [0, {SEED_MAX}]")
+
+    def view_seed(self, number: int) -> int:
+        """Mitsuba's sampler seed of the ``number``-th view (Mitsuba takes 32-bit seeds)."""
+        return (self.seed * 100003 + number) % 2 ** 32
 
 
 def vertex_colors_srgb8(obj: SyntheticObject) -> np.ndarray:
@@ -188,8 +196,12 @@ def _generate(name: str, out: str, settings: GeneratorSettings, overwrite: bool,
     if os.path.lexists(partial):
         shutil.rmtree(partial)  # an interrupted run's staging folder (checked above)
     try:
-        writer.ensure_dir(partial)
-        writer.write_json(os.path.join(partial, PARTIAL_MARKER), {"object": name})
+        try:
+            writer.ensure_dir(partial)
+            writer.write_json(os.path.join(partial, PARTIAL_MARKER), {"object": name})
+        except OSError as error:
+            raise OutputFolderError("--out", f"'{partial}' cannot be created "
+                                             f"({error.strerror or error})") from None
         train_poses, test_poses = sphere_poses(settings.n_train, settings.n_test, settings.seed)
         render_started = time.perf_counter()
         views = [("train", i, pose) for i, pose in enumerate(train_poses)]
@@ -198,7 +210,7 @@ def _generate(name: str, out: str, settings: GeneratorSettings, overwrite: bool,
                 tqdm(views, desc=f"render {name}", unit="view", disable=not progress)):
             image = render_view(scene, pose, NERF_CAMERA_ANGLE_X, settings.width,
                                 settings.height, settings.spp,
-                                seed=settings.seed * 100003 + number)
+                                seed=settings.view_seed(number))
             writer.write_png(os.path.join(writer.ensure_dir(os.path.join(partial, split)),
                                           f"r_{index}.png"),
                              writer.rgba8_from_premultiplied(image))

@@ -1,4 +1,6 @@
-"""Writing a generated dataset: RGBA PNGs, transforms JSON files, the ground-truth mesh."""
+"""Writing a generated dataset: RGBA PNGs, transforms JSON files, the ground-truth mesh.
+
+A write that fails (a full disk) raises an ``OSError`` naming its file."""
 from __future__ import annotations
 
 import json
@@ -9,6 +11,7 @@ import trimesh
 from PIL import Image
 
 from fracture_gs.data.synthetic.textures import linear_to_srgb
+from fracture_gs.io.output_folder import naming_file
 
 
 def rgba8_from_premultiplied(image: np.ndarray) -> np.ndarray:
@@ -24,7 +27,8 @@ def rgba8_from_premultiplied(image: np.ndarray) -> np.ndarray:
 
 
 def write_png(path: str, rgba8: np.ndarray) -> None:
-    Image.fromarray(rgba8, mode="RGBA").save(path, optimize=False)
+    with naming_file(path):
+        Image.fromarray(rgba8, mode="RGBA").save(path, optimize=False)
 
 
 def write_transforms(path: str, camera_angle_x: float, file_paths: list[str],
@@ -32,7 +36,7 @@ def write_transforms(path: str, camera_angle_x: float, file_paths: list[str],
     """NeRF-synthetic ``transforms_*.json`` (camera-to-world, OpenGL axes)."""
     frames = [{"file_path": file_path, "transform_matrix": np.asarray(c2w).tolist()}
               for file_path, c2w in zip(file_paths, camera_to_worlds)]
-    with open(path, "w", encoding="utf-8") as handle:
+    with naming_file(path), open(path, "w", encoding="utf-8") as handle:
         json.dump({"camera_angle_x": camera_angle_x, "frames": frames}, handle, indent=2)
         handle.write("\n")
 
@@ -42,13 +46,13 @@ def write_mesh(path: str, mesh: trimesh.Trimesh, colors_srgb8: np.ndarray | None
     out = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     if colors_srgb8 is not None:
         out.visual.vertex_colors = colors_srgb8
-    with open(path, "wb") as handle:
+    with naming_file(path), open(path, "wb") as handle:
         handle.write(trimesh.exchange.ply.export_ply(out, encoding="binary",
                                                      include_attributes=False))
 
 
 def write_json(path: str, content: dict) -> None:
-    with open(path, "w", encoding="utf-8") as handle:
+    with naming_file(path), open(path, "w", encoding="utf-8") as handle:
         json.dump(content, handle, indent=2)
         handle.write("\n")
 

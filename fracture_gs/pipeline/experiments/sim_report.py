@@ -205,17 +205,23 @@ def paired_section(paired: Sequence[dict]) -> str:
             "runs apart.\n")
 
 
+def _text_cell(value: object, digits: int) -> str:
+    """A number of the plain-text table with ``digits`` decimals; a reason ('unavailable') or '—'."""
+    return f"{value:.{digits}f}" if isinstance(value, float) else str(value if value is not None else "—")
+
+
 def print_comparison(metrics: dict, with_paper: bool = False) -> str:
-    """The comparison table as plain text (what evaluate.py / demo.py print)."""
+    """The comparison table as plain text (what evaluate.py / demo.py print). Each number column is
+    at least as wide as its header's default and two characters wider than its widest cell."""
     rows = comparison_rows(metrics["runs"]) + (PAPER_ROWS if with_paper else [])
     width = max(len(str(r[0])) for r in rows) + 2
-    lines = [f"{'run':<{width}}{'PSNR':>9}{'LPIPS':>9}{'FID':>10}  N (ref/window)"]
-    for label, psnr, lpips, fid, n, _ in rows:
-        def cell(value: object, digits: int) -> str:
-            return f"{value:.{digits}f}" if isinstance(value, float) else str(value if value
-                                                                              is not None else "—")
-        lines.append(f"{label:<{width}}{cell(psnr, 2):>9}{cell(lpips, 3):>9}{cell(fid, 2):>10}  "
-                     f"{n if n else '—'}")
+    cells = [(str(label), _text_cell(psnr, 2), _text_cell(lpips, 3), _text_cell(fid, 2), n if n else "—")
+             for label, psnr, lpips, fid, n, _ in rows]
+    widths = [max([minimum] + [len(row[column]) + 2 for row in cells])
+              for column, minimum in ((1, 9), (2, 9), (3, 10))]
+    lines = [f"{'run':<{width}}{'PSNR':>{widths[0]}}{'LPIPS':>{widths[1]}}{'FID':>{widths[2]}}  N (ref/window)"]
+    for label, psnr, lpips, fid, n in cells:
+        lines.append(f"{label:<{width}}{psnr:>{widths[0]}}{lpips:>{widths[1]}}{fid:>{widths[2]}}  {n}")
     for comparison in metrics.get("paired", []):
         lines.append(f"{comparison['first']} vs {comparison['second']}: " + "; ".join(
             f"{name.upper()} {advantage_text(comparison[name], name)}"
