@@ -3,8 +3,8 @@
 Each range holds every real object the simulator is meant for with room to spare, and keeps the
 float32 kernels clear of overflow (docs/scenes.md and docs/materials.md state them). The readers
 check each value once, where they read it: the scene keys in :mod:`fracture_gs.config.scene`, the
-material keys in the material classes' ``from_yaml`` (through :mod:`fracture_gs.keys`), the
-command-line options in the commands.
+material keys in the material classes' ``from_yaml`` (through :mod:`fracture_gs.keys`; a model's own
+keys have their ranges beside it), the command-line options in the commands.
 """
 from __future__ import annotations
 
@@ -24,15 +24,9 @@ SUBSTEPS_MAX = 1.0e8
 # Materials (SI units).
 DENSITY = (1.0e-2, 1.0e5)           # kg/m³ (aerogels ~1, osmium 22 590)
 YOUNGS_MODULUS = (1.0, 1.0e13)      # Pa (gels ~1e2, diamond 1.2e12)
-STRENGTH = (1.0, 1.0e11)            # Pa, brittle tensile strength σ_F (snow ~1e3, glass fibre ~5e9)
-FRACTURE_ENERGY = (0.0, 1.0e7)      # J/m² (> 0; glass ~5, tough steels ~1e5)
-WEIBULL_M = (1.0, 100.0)            # Weibull modulus (chalk ~3, glass ~10, steels ~50); or 0: no scatter
+STRESS = (1.0, 1.0e11)              # Pa, a strength or yield stress (snow ~1e3, glass fibre ~5e9)
 SOFTENING = (1.0, 1.0e6)            # a preset's softening factor k (E / k, strength / √k)
-NACC_ALPHA0 = (-2.3, 2.3)           # α0 = ln Jp0
-NACC_JP0 = (0.1, 10.0)              # Jp0 = exp(α0)
-NACC_BETA = (0.0, 10.0)             # cohesion share β
-NACC_XI = (0.0, 10.0)               # hardening ξ
-NACC_M = (0.0, 10.0)                # critical-state slope (> 0; M = 3 at a friction angle of 90°)
+# A material model's own keys have their ranges in its class (fracture_gs/materials/).
 
 # Command lines.
 FPS = (0.1, 1000.0)                 # frames per second of render.py's videos and view.py's playback

@@ -27,7 +27,8 @@ from fracture_gs.data.synthetic import __main__ as synthetic_cli
 from fracture_gs.data.synthetic import generator
 from fracture_gs.io.atomic import atomic_write
 from fracture_gs.io.output_folder import os_error_line
-from fracture_gs.materials import BrittleMaterial, particle_strengths
+from fracture_gs.materials import BrittleMaterial, MaterialTable
+from fracture_gs.materials.brittle import FRACTURE_ENERGY_RANGE, WEIBULL_M_RANGE
 from fracture_gs.mpm.scene import build_scene
 from fracture_gs.mpm.substeps import check_substeps, estimate_substeps
 from fracture_gs.pipeline.experiments.sim_report import print_comparison
@@ -36,6 +37,13 @@ from fracture_gs.render import video
 
 ROOT = Path(__file__).resolve().parents[1]
 TRAIN_FIXTURE = ROOT / "tests" / "data" / "synthetic_fixture"
+
+
+def particle_strengths(materials: list, material_id: torch.Tensor, rest_volume: torch.Tensor,
+                       seed: int) -> torch.Tensor:
+    """Every particle's tensile strength as the scene's state block starts with it."""
+    state = MaterialTable(materials, cell_size=1.0).initial_state(material_id, rest_volume, seed)
+    return state[:, BrittleMaterial.state_fields.index("strength")]
 
 
 def brittle_sphere(**material: Any) -> dict[str, Any]:
@@ -329,21 +337,21 @@ def test_weibull_strengths_at_the_bounds_are_finite_without_warnings() -> None:
     """The strongest particle: σ_F (V_ref ln R / (V ln 0.5))^(1/m) with R at its smallest
     (2^-54, ln R / ln 0.5 = 54) at m = 1 and the largest strength is 54 V_ref / V σ_F: finite
     in float32 for volumes a thousand times below the mean."""
-    material = BrittleMaterial(E=1.0e13, nu=0.2, density=1.0e5, strength=bounds.STRENGTH[1],
-                               fracture_energy=bounds.FRACTURE_ENERGY[1], weibull_m=bounds.WEIBULL_M[0])
+    material = BrittleMaterial(E=1.0e13, nu=0.2, density=1.0e5, strength=bounds.STRESS[1],
+                               fracture_energy=FRACTURE_ENERGY_RANGE[1], weibull_m=WEIBULL_M_RANGE[0])
     count = 100_000
     volume = torch.from_numpy(np.where(np.arange(count) % 2 == 0, 1.0e-9, 1.0e-6).astype(np.float32))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         strengths = particle_strengths([material], torch.zeros(count, dtype=torch.int32), volume, seed=7)
     assert strengths is not None and bool(torch.isfinite(strengths).all())
-    assert float(strengths.max()) <= 54.0 * 500.0 * bounds.STRENGTH[1]
+    assert float(strengths.max()) <= 54.0 * 500.0 * bounds.STRESS[1]
 
 
 def test_the_smallest_weibull_modulus_breaks_nothing_in_free_flight() -> None:
     """weibull_m 0.01 made half a sphere 'fractured' in free flight (221 of these 458 particles
     within 0.04 s); at the smallest modulus allowed, 1, a sphere in free fall stays whole."""
-    config = parse_scene(brittle_sphere(E=2.0e4, strength=200.0, weibull_m=bounds.WEIBULL_M[0]))
+    config = parse_scene(brittle_sphere(E=2.0e4, strength=200.0, weibull_m=WEIBULL_M_RANGE[0]))
     built = build_scene(config, torch.device("cpu"))
     solver = create_solver(built, torch.device("cpu"), "auto")
     with warnings.catch_warnings():

@@ -48,6 +48,9 @@ DEFAULT_FRACTURE_DAMAGE = 0.5
 # The partition (crack opening) splits material whose damage is complete.
 COMPLETE_DAMAGE = 1.0
 _BRITTLE_KEYS = ("strength", "fracture_energy", "weibull_m", "residual", "fracture_damage")
+# Ranges of the keys beside fracture_gs/bounds.py's (strength: bounds.STRESS).
+FRACTURE_ENERGY_RANGE = (0.0, 1.0e7)   # J/m² (> 0; glass ~5, tough steels ~1e5)
+WEIBULL_M_RANGE = (1.0, 100.0)         # Weibull modulus (chalk ~3, glass ~10, steels ~50); or 0: no scatter
 # Crack normals point to this side (a unit vector in no symmetry plane of the grid).
 CRACK_ORIENTATION = (0.2672612419124244, 0.5345224838248488, 0.8017837257372732)
 
@@ -152,8 +155,8 @@ class BrittleMaterial(MaterialModel):
         self._validate_elasticity()
         require(owner, "strength", self.strength, self.strength > 0, "> 0")
         require(owner, "fracture_energy", self.fracture_energy, self.fracture_energy > 0, "> 0")
-        require(owner, "weibull_m", self.weibull_m, self.weibull_m == 0 or self.weibull_m >= bounds.WEIBULL_M[0],
-                f"0 or >= {bounds.WEIBULL_M[0]:g}")
+        require(owner, "weibull_m", self.weibull_m, self.weibull_m == 0 or self.weibull_m >= WEIBULL_M_RANGE[0],
+                f"0 or >= {WEIBULL_M_RANGE[0]:g}")
         require(owner, "residual", self.residual, 0.0 <= self.residual < 1.0, "in [0, 1)")
         require(owner, "fracture_damage", self.fracture_damage, 0.0 < self.fracture_damage <= 1.0, "in (0, 1]")
 
@@ -163,9 +166,9 @@ class BrittleMaterial(MaterialModel):
         keys.check_keys(data, path, cls.yaml_keys,
                         required=ELASTIC_KEYS + ("strength", "fracture_energy"))
         return cls(**cls.elasticity_from_yaml(data, path),
-                   strength=keys.number(data, "strength", path, gt=0.0, within=bounds.STRENGTH),
-                   fracture_energy=keys.number(data, "fracture_energy", path, gt=0.0, within=bounds.FRACTURE_ENERGY),
-                   weibull_m=keys.number(data, "weibull_m", path, DEFAULT_WEIBULL_M, ge=0.0, within=bounds.WEIBULL_M,
+                   strength=keys.number(data, "strength", path, gt=0.0, within=bounds.STRESS),
+                   fracture_energy=keys.number(data, "fracture_energy", path, gt=0.0, within=FRACTURE_ENERGY_RANGE),
+                   weibull_m=keys.number(data, "weibull_m", path, DEFAULT_WEIBULL_M, ge=0.0, within=WEIBULL_M_RANGE,
                                          off=0.0),
                    residual=keys.number(data, "residual", path, DEFAULT_RESIDUAL, ge=0.0, lt=1.0),
                    fracture_damage=keys.number(data, "fracture_damage", path, DEFAULT_FRACTURE_DAMAGE, gt=0.0,

@@ -15,7 +15,7 @@ import torch
 
 import numpy as np
 
-from fracture_gs import bounds, keys
+from fracture_gs import keys
 from fracture_gs.materials.hencky import (ELASTIC_KEYS, as_float_tensor, compose, energy_density_reference,
                                           hencky_strain, kirchhoff_from_strain, proper_svd, require)
 from fracture_gs.materials.model import MaterialModel, parameter
@@ -27,6 +27,12 @@ YIELD_TOLERANCE = 1e-6
 DEFAULT_BETA = 0.5
 DEFAULT_XI = 1.0
 DEFAULT_M = 2.36
+# Ranges of the keys (fracture_gs/bounds.py holds those every model shares).
+ALPHA0_RANGE = (-2.3, 2.3)           # α0 = ln Jp0
+JP0_RANGE = (0.1, 10.0)              # Jp0 = exp(α0)
+BETA_RANGE = (0.0, 10.0)             # cohesion share β
+XI_RANGE = (0.0, 10.0)               # hardening ξ
+M_RANGE = (0.0, 10.0)                # critical-state slope (> 0; M = 3 at a friction angle of 90°)
 
 
 def friction_angle_to_M(phi_degrees: float) -> float:
@@ -155,18 +161,18 @@ class NACCMaterial(MaterialModel):
         if "alpha0" not in data and "Jp0" not in data:
             raise keys.SceneError(f"{path}.alpha0", "required key is missing (give 'alpha0' or 'Jp0')")
         if "alpha0" in data:
-            alpha0 = keys.number(data, "alpha0", path, within=bounds.NACC_ALPHA0)
+            alpha0 = keys.number(data, "alpha0", path, within=ALPHA0_RANGE)
         else:
-            alpha0 = math.log(keys.number(data, "Jp0", path, gt=0.0, within=bounds.NACC_JP0))
+            alpha0 = math.log(keys.number(data, "Jp0", path, gt=0.0, within=JP0_RANGE))
         if "M" in data and "friction_angle" in data:
             raise keys.SceneError(f"{path}.M", "give at most one of 'M' and 'friction_angle' (both given)")
         if "friction_angle" in data:
             M = friction_angle_to_M(keys.number(data, "friction_angle", path, gt=0.0, lt=90.0))
         else:
-            M = keys.number(data, "M", path, DEFAULT_M, gt=0.0, within=bounds.NACC_M)
+            M = keys.number(data, "M", path, DEFAULT_M, gt=0.0, within=M_RANGE)
         return cls(**elasticity, alpha0=alpha0,
-                   beta=keys.number(data, "beta", path, DEFAULT_BETA, ge=0.0, within=bounds.NACC_BETA),
-                   xi=keys.number(data, "xi", path, DEFAULT_XI, ge=0.0, within=bounds.NACC_XI), M=M,
+                   beta=keys.number(data, "beta", path, DEFAULT_BETA, ge=0.0, within=BETA_RANGE),
+                   xi=keys.number(data, "xi", path, DEFAULT_XI, ge=0.0, within=XI_RANGE), M=M,
                    alpha_threshold=keys.number(data, "alpha_threshold", path, 0.0))
 
     def to_yaml(self) -> dict[str, Any]:

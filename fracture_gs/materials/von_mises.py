@@ -14,12 +14,14 @@ from typing import Any, ClassVar
 
 import torch
 
-from fracture_gs import keys
+from fracture_gs import bounds, keys
 from fracture_gs.materials.hencky import (ELASTIC_KEYS, compose, energy_density_reference, hencky_strain,
                                           kirchhoff_from_strain, proper_svd, require)
 from fracture_gs.materials.model import MaterialModel, parameter
 
 _KEYS = ("yield_stress", "hardening", "failure_strain")
+HARDENING_RANGE = (0.0, 1.0e13)     # Pa (>= 0; the yield stress's slope over the plastic strain)
+FAILURE_STRAIN_RANGE = (0.0, 1.0e3)  # (> 0)
 SQRT_2_3 = math.sqrt(2.0 / 3.0)
 
 
@@ -76,9 +78,10 @@ class VonMisesMaterial(MaterialModel):
         """The material of a scene's material mapping (``part`` and ``model`` are the scene's)."""
         keys.check_keys(data, path, cls.yaml_keys, required=ELASTIC_KEYS + ("yield_stress",))
         return cls(**cls.elasticity_from_yaml(data, path),
-                   yield_stress=keys.number(data, "yield_stress", path, gt=0.0),
-                   hardening=keys.number(data, "hardening", path, 0.0, ge=0.0),
-                   failure_strain=keys.number(data, "failure_strain", path, math.inf, gt=0.0))
+                   yield_stress=keys.number(data, "yield_stress", path, gt=0.0, within=bounds.STRESS),
+                   hardening=keys.number(data, "hardening", path, 0.0, ge=0.0, within=HARDENING_RANGE),
+                   failure_strain=keys.number(data, "failure_strain", path, math.inf, gt=0.0,
+                                              within=FAILURE_STRAIN_RANGE))
 
     def to_yaml(self) -> dict[str, Any]:
         """The resolved keys (``model`` included; ``failure_strain`` only where it is finite)."""
