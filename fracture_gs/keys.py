@@ -150,7 +150,7 @@ def vec3(data: Mapping[str, Any], key: str, path: str,
     if key not in data:
         return absent(keypath, default)
     value = data[key]
-    if not isinstance(value, list) or len(value) != 3:
+    if not isinstance(value, (list, tuple)) or len(value) != 3:
         raise SceneError(keypath, f"expected a list of 3 numbers, got {type_name(value)}")
     return tuple(check_number(v, f"{keypath}[{i}]", gt=gt, within=within)  # type: ignore[return-value]
                  for i, v in enumerate(value))

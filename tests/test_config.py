@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 import yaml
 
-from fracture_gs.config import (BoxConfig, GroundConfig, SceneConfig, SceneError, load_scene,
+from fracture_gs.config import (BoxBoundary, GroundBoundary, SceneConfig, SceneError, load_scene,
                                 parse_scene)
 
 
@@ -37,8 +37,8 @@ def test_valid_scene_fills_defaults() -> None:
     config = parse_scene(base_scene())
     assert isinstance(config, SceneConfig)
     assert config.cfl == 0.3 and config.contact.mode == "collision"
-    assert config.contact.strength == 1.0 and config.contact.friction == 0.0
-    assert config.boundaries == (GroundConfig(height=0.1, friction=0.5), BoxConfig("slip"))
+    assert config.contact.impulse_scale == 1.0 and config.contact.friction == 0.0
+    assert config.boundaries == (GroundBoundary(height=0.1, friction=0.5), BoxBoundary("slip"))
     ball, block = config.objects
     assert ball.primitive is not None and ball.primitive.particles_per_cell == 8
     assert ball.transform.scale == 1.0 and ball.transform.rotate_deg == (0.0, 0.0, 0.0)
@@ -154,8 +154,9 @@ MALFORMED = [
     ("gravity", "down", "gravity", "expected a list of 3 numbers"),
     ("contact", {"mode": "glue"}, "contact.mode", "'glue' is not one of collision, mls"),
     ("contact", {"friction": -1}, "contact.friction", "-1 is not >= 0"),
-    ("contact", {"strength": 2.5}, "contact.strength", "2.5 is not <= 2"),
-    ("contact", {"strength": -0.5}, "contact.strength", "-0.5 is not >= 0"),
+    ("contact", {"impulse_scale": 2.5}, "contact.impulse_scale", "2.5 is not <= 2"),
+    ("contact", {"impulse_scale": -0.5}, "contact.impulse_scale", "-0.5 is not >= 0"),
+    ("contact", {"strength": 1.0}, "contact.strength", "this key is now called 'impulse_scale'"),
     ("boundaries.1.condition", "bouncy", "boundaries[1].condition", "is not one of"),
     ("boundaries.0.type", "wall", "boundaries[0].type", "is not one of ground, box"),
     ("boundaries.0.height", 2.0, "boundaries[0].height", "2 is not < 1"),

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from fracture_gs.pipeline.simulate import create_solver
-from fracture_gs.config import GroundConfig, load_scene
+from fracture_gs.config import GroundBoundary, load_scene
 from fracture_gs.config.scene import parse_scene, read_yaml
 from fracture_gs.mpm.scene import build_scene
 
@@ -46,8 +46,8 @@ def test_shipped_scene_builds_and_runs(path: Path) -> None:
     state = solver.state
     for name in ("x", "v", "F_E", "alpha"):
         assert bool(torch.isfinite(getattr(state, name)).all()), name
-    lower = torch.tensor(config.domain.min)
-    upper = torch.tensor(config.domain.max)
+    lower = torch.tensor(config.domain.lower)
+    upper = torch.tensor(config.domain.upper)
     assert bool(((state.x >= lower) & (state.x <= upper)).all())
     assert float((state.x - built.particles.x).abs().max()) > 0.0   # something moved
     print(f"[config] {path.name}: {len(built.particles)} particles, grid {config.domain.grid}, "
@@ -55,7 +55,7 @@ def test_shipped_scene_builds_and_runs(path: Path) -> None:
     after = solver.diagnostics()
     scale = abs(before["total_energy"]) + before["kinetic"]
     assert after["total_energy"] <= before["total_energy"] + 0.01 * scale
-    if not any(isinstance(b, GroundConfig) for b in config.boundaries):
+    if not any(isinstance(b, GroundBoundary) for b in config.boundaries):
         mass = float(built.particles.mass.double().sum())
         expected = np.asarray(before["momentum"]) + mass * elapsed * np.asarray(config.gravity)
         momentum_scale = float((built.particles.mass.double()[:, None]

@@ -188,19 +188,19 @@ def centre_gaps(fields: GridFields, eps: float) -> torch.Tensor:
     return ((centres[1] - centres[0]) * normal).sum(-1)
 
 
-def collision_on(device: str, bins: ParticleBins, fields: GridFields, geometry: GridGeometry, strength: float,
+def collision_on(device: str, bins: ParticleBins, fields: GridFields, geometry: GridGeometry, impulse_scale: float,
                  friction: float, max_gap: float) -> GridFields:
     """The compiled contact pass on ``device``; the result on the CPU."""
     on_device = moved(fields, device)
-    ops.collision(bins_on(bins, device), geometry, strength, friction, 1e-12, max_gap, on_device, backend="cpp")
+    ops.collision(bins_on(bins, device), geometry, impulse_scale, friction, 1e-12, max_gap, on_device, backend="cpp")
     return moved(on_device, CPU)
 
 
 @pytest.mark.parametrize("device", KERNEL_DEVICES)
-@pytest.mark.parametrize("strength", [1.0, 0.5])
+@pytest.mark.parametrize("impulse_scale", [1.0, 0.5])
 @pytest.mark.parametrize("friction", [0.0, 0.4])
 @pytest.mark.parametrize("n_grids", [2, 3])
-def test_collision_matches_reference_and_conserves_momentum(friction, n_grids, strength, device):
+def test_collision_matches_reference_and_conserves_momentum(friction, n_grids, impulse_scale, device):
     geometry, _, _ = random_setup(0, n_grids=n_grids)
     bins, fields = contact_grids(n_grids, geometry)
     # A gap threshold that passes about half the nodes, at the widest spacing between neighbouring
@@ -209,9 +209,9 @@ def test_collision_matches_reference_and_conserves_momentum(friction, n_grids, s
     middle = gaps[len(gaps) // 4: 3 * len(gaps) // 4]
     widest = int(torch.argmax(middle[1:] - middle[:-1]))
     max_gap = float(0.5 * (middle[widest] + middle[widest + 1]))
-    compiled = collision_on(device, bins, fields, geometry, strength, friction, max_gap)
+    compiled = collision_on(device, bins, fields, geometry, impulse_scale, friction, max_gap)
     twin = double_copy(fields)
-    reference.collision(twin, strength, friction, 1e-12, max_gap, CONTACT_INSIDE_CELLS * geometry.dx)
+    reference.collision(twin, impulse_scale, friction, 1e-12, max_gap, CONTACT_INSIDE_CELLS * geometry.dx)
     changed = (twin.velocity != fields.velocity.double()).any(-1)
     assert bool(changed.any()), "the test setup must produce contacts"
     assert rel_err(compiled.velocity, twin.velocity) < REL_TOL
@@ -220,7 +220,7 @@ def test_collision_matches_reference_and_conserves_momentum(friction, n_grids, s
     scale = float((compiled.mass.double()[..., None] * compiled.velocity.double().abs()).sum())
     assert float((after - before).abs().max()) < 1e-6 * scale
     if device != "cpu":
-        cpu = collision_on("cpu", bins, fields, geometry, strength, friction, max_gap)
+        cpu = collision_on("cpu", bins, fields, geometry, impulse_scale, friction, max_gap)
         assert rel_err(compiled.velocity, cpu.velocity) < REL_TOL
 
 
@@ -239,13 +239,13 @@ def one_node_fields(gap_in_cells: float, geometry: GridGeometry) -> GridFields:
     return fields
 
 
-def contact_at_one_node(backend: str, device: str, strength: float, friction: float, gap_in_cells: float,
+def contact_at_one_node(backend: str, device: str, impulse_scale: float, friction: float, gap_in_cells: float,
                         max_gap_cells: float = 0.9) -> torch.Tensor:
     """Velocities (2, 3) of the two bodies at the node after the contact pass."""
     geometry = GridGeometry.from_domain(Domain((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 8), 2)
     fields = moved(one_node_fields(gap_in_cells, geometry), device)
     bins = ParticleBins(*([torch.zeros(0, dtype=torch.int32)] * 6), torch.zeros(1, dtype=torch.int32))
-    ops.collision(bins_on(bins, device), geometry, strength, friction, 1e-12, max_gap_cells * geometry.dx, fields,
+    ops.collision(bins_on(bins, device), geometry, impulse_scale, friction, 1e-12, max_gap_cells * geometry.dx, fields,
                   backend=backend)
     return fields.velocity[:, 5].cpu().double()
 
@@ -257,18 +257,18 @@ BACKEND_DEVICES = [pytest.param("reference", "cpu", id="reference")] + [
 @pytest.mark.parametrize("backend,device", BACKEND_DEVICES)
 def test_contact_impulse_by_hand(backend, device):
     # m_a = 1, m_b = 2: reduced mass 2/3; relative velocity (1, 0.5, 0), normal +x: v_n = 1, j_n = 2/3.
-    v = contact_at_one_node(backend, device, strength=1.0, friction=0.0, gap_in_cells=0.4)
+    v = contact_at_one_node(backend, device, impulse_scale=1.0, friction=0.0, gap_in_cells=0.4)
     assert torch.allclose(v, torch.tensor([[1 / 3, 0.5, 0.0], [1 / 3, 0.0, 0.0]], dtype=torch.float64), atol=1e-6)
     # Friction caps the tangential impulse at mu_f s j_n (docs/formulas.md §7): s = 0.5, mu_f = 0.4 -> 0.4 * 0.5 * 2/3.
-    v = contact_at_one_node(backend, device, strength=0.5, friction=0.4, gap_in_cells=0.4)
+    v = contact_at_one_node(backend, device, impulse_scale=0.5, friction=0.4, gap_in_cells=0.4)
     jn, jt = 0.5 * 2 / 3, 0.4 * 0.5 * 2 / 3
     assert torch.allclose(v, torch.tensor([[1 - jn, 0.5 - jt, 0.0], [jn / 2, jt / 2, 0.0]], dtype=torch.float64),
                           atol=1e-6)
     # s = 0: no normal impulse and so no friction either.
-    v = contact_at_one_node(backend, device, strength=0.0, friction=0.4, gap_in_cells=0.4)
+    v = contact_at_one_node(backend, device, impulse_scale=0.0, friction=0.4, gap_in_cells=0.4)
     assert torch.allclose(v, torch.tensor([[1.0, 0.5, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64), atol=1e-7)
     # s = 2: the normal relative velocity is reversed, (1 - s) v_n: kinetic energy at the node is kept.
-    v = contact_at_one_node(backend, device, strength=2.0, friction=0.0, gap_in_cells=0.4)
+    v = contact_at_one_node(backend, device, impulse_scale=2.0, friction=0.0, gap_in_cells=0.4)
     assert float(v[0, 0] - v[1, 0]) == pytest.approx(-1.0, abs=1e-6)
     energy = 0.5 * (1.0 * v[0].square().sum() + 2.0 * v[1].square().sum())
     assert float(energy) == pytest.approx(0.5 * 1.25, rel=1e-6)

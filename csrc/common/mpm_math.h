@@ -108,7 +108,7 @@ HOST_DEVICE inline void apic_affine(const float* C, const float* tau, float mass
 // thick bodies and their corners) the normal is the averaged one, so the gap check still rejects the tilted
 // normals at a sliding block's corners.
 struct ContactParams {
-  float strength;  // s = contact.strength, 0 <= s <= 2
+  float impulse_scale;  // s = contact.impulse_scale, 0 <= s <= 2
   float friction;  // Coulomb coefficient mu_f between the bodies
   float mass_eps;  // nodes with mass <= mass_eps carry no field
   float max_gap;   // contact where the mass-centre gap along n is below this (length units)
@@ -173,7 +173,7 @@ HOST_DEVICE inline bool contact_normal(const ContactSide& a, const ContactSide& 
 // only while the fields approach, dp_a = -s j_n n - friction, dp_b = -dp_a (momentum is conserved
 // at the node). Friction: j_t = min(mu_f s j_n, m_r |v_t|) against the tangential relative
 // velocity. Returns true if an impulse was applied.
-HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb, const float n[3], float strength,
+HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb, const float n[3], float impulse_scale,
                                         float friction) {
   const float vrel[3] = {va[0] - vb[0], va[1] - vb[1], va[2] - vb[2]};
   const float vn = vrel[0] * n[0] + vrel[1] * n[1] + vrel[2] * n[2];
@@ -181,12 +181,12 @@ HOST_DEVICE inline bool contact_impulse(float ma, float mb, float* va, float* vb
   const float reduced = ma * mb / (ma + mb);
   const float jn = reduced * vn;
   float dp[3];
-  for (int d = 0; d < 3; ++d) dp[d] = -strength * jn * n[d];
+  for (int d = 0; d < 3; ++d) dp[d] = -impulse_scale * jn * n[d];
   if (friction > 0.f) {
     const float vt[3] = {vrel[0] - vn * n[0], vrel[1] - vn * n[1], vrel[2] - vn * n[2]};
     const float vt_norm = sqrtf(vt[0] * vt[0] + vt[1] * vt[1] + vt[2] * vt[2]);
     if (vt_norm > 1e-12f) {
-      const float jt = fminf(friction * strength * jn, reduced * vt_norm);
+      const float jt = fminf(friction * impulse_scale * jn, reduced * vt_norm);
       for (int d = 0; d < 3; ++d) dp[d] -= jt * vt[d] / vt_norm;
     }
   }
@@ -207,7 +207,7 @@ HOST_DEVICE inline bool contact_pair(const ContactSide& a, const ContactSide& b,
   contact_offset(a, b, d);
   if (!contact_normal(a, b, d, c.inside, n)) return false;
   if (!(d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < c.max_gap)) return false;
-  return contact_impulse(a.mass, b.mass, a.velocity, b.velocity, n, c.strength, c.friction);
+  return contact_impulse(a.mass, b.mass, a.velocity, b.velocity, n, c.impulse_scale, c.friction);
 }
 
 // Contact pass at one node for every pair of object grids, in a fixed order (a < b).

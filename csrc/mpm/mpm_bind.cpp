@@ -390,16 +390,15 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
 }
 
 void collision(const Tensor& contact_blocks, const std::vector<double>& lower, double dx,
-               const std::vector<int64_t>& blocks, int64_t n_grids, double strength, double friction, double mass_eps,
+               const std::vector<int64_t>& blocks, int64_t n_grids, double impulse_scale, double friction, double mass_eps,
                double max_gap, double inside, Tensor grid_mass, Tensor grid_velocity, Tensor grid_mass_gradient,
                Tensor grid_position_moment) {
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
   check_tensor(contact_blocks, "contact_blocks", torch::kInt32, grid_mass);
   GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, Tensor(), grid_velocity, grid_mass_gradient,
                                 grid_position_moment);
-  TORCH_CHECK(strength >= 0.0 && strength <= 2.0, "contact strength must satisfy 0 <= s <= 2, got ", strength);
   TORCH_CHECK(friction >= 0.0, "contact friction must be >= 0, got ", friction);
-  const ContactParams params{(float)strength, (float)friction, (float)mass_eps, (float)max_gap, (float)inside};
+  const ContactParams params{(float)impulse_scale, (float)friction, (float)mass_eps, (float)max_gap, (float)inside};
   if (grid_mass.device().is_cpu()) {
     collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid);
     return;

@@ -24,10 +24,11 @@ Conventions:
 """
 from __future__ import annotations
 
+import math
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -68,46 +69,114 @@ DEFAULT_FRAGMENTS = False  # contact.fragments (crack opening inside objects, do
 # ----------------------------------------------------------------------------- dataclasses
 
 
-@dataclass(frozen=True)
-class DomainConfig:
-    """Simulation box; cells are cubes of edge ``dx = (max - min)[0] / grid``."""
+# Solver settings of contact that the YAML does not expose (docs/design_mpm.md): contact detection,
+# in cells (a node is a contact only where the two bodies' mass centres seen from it are closer than
+# this along the normal: touching solid bodies are 0.81-0.9 dx apart, touching one-layer sheets their
+# particle spacing); the partition's split threshold, in 1/cells (a node is split into two crack sides
+# where the largest particle damage gradient reaching it is at least this); and the plastic volume
+# dilation by which NACC's α must pass its fracture threshold before the partition treats a particle
+# as damaged.
+CONTACT_GAP_CELLS = 0.9
+SPLIT_GRADIENT_CELLS = 0.25
+DAMAGE_DILATION = 0.005
 
-    min: tuple[float, float, float]
-    max: tuple[float, float, float]
+
+@dataclass(frozen=True)
+class Domain:
+    """The simulation box (YAML ``domain: {min, max, grid}``): cubic cells of edge
+    ``dx = (upper - lower)[0] / grid``. Checked when made (``path``: the key path errors name)."""
+
+    lower: tuple[float, float, float]
+    upper: tuple[float, float, float]
     grid: int
+    path: InitVar[str] = "domain"
+
+    def __post_init__(self, path: str) -> None:
+        given = {"min": self.lower, "max": self.upper, "grid": self.grid}
+        lower, upper = _vec3(given, "min", path), _vec3(given, "max", path)
+        for axis in range(3):
+            if not upper[axis] > lower[axis]:
+                raise SceneError(f"{path}.max[{axis}]", f"{_fmt(upper[axis])} is not > {path}.min[{axis}] = "
+                                                        f"{_fmt(lower[axis])}")
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+        object.__setattr__(self, "grid", _integer(given, "grid", path, ge=8))
 
     @property
     def dx(self) -> float:
-        return (self.max[0] - self.min[0]) / self.grid
+        return (self.upper[0] - self.lower[0]) / self.grid
+
+    @property
+    def size(self) -> float:
+        """Largest edge length of the box."""
+        return max(hi - lo for lo, hi in zip(self.lower, self.upper))
 
 
 @dataclass(frozen=True)
-class ContactConfig:
+class ContactSettings:
+    """How objects touch (YAML ``contact: {mode, impulse_scale, friction, fragments}``): per-object grids
+    and the contact impulse (``collision``), or one shared grid (``mls``, the baseline). Checked when
+    made (``path``: the key path errors name)."""
+
     mode: Literal["collision", "mls"] = "collision"
-    strength: float = 1.0
-    friction: float = 0.0
-    # Crack opening inside an object (docs/formulas.md §8); false: one grid field per object (the paper).
+    # The paper's μ, the scale of the normal impulse: it leaves (1 - s) of the normal approach speed,
+    # so 0 <= s <= 2 (beyond 2 the impulse would add energy).
+    impulse_scale: float = 1.0
+    friction: float = 0.0        # Coulomb coefficient between objects (tangential cap friction · s · j_n)
+    # Crack opening inside an object (docs/formulas.md §8): each object grid is split into two fields
+    # along the damage gradient, which meet through the same contact impulse. False: one field per
+    # object (the paper's behaviour, kept for the ablation).
     fragments: bool = DEFAULT_FRAGMENTS
+    # Not YAML keys (solver settings, docs/design_mpm.md): contact detection in cells (math.inf: every
+    # node where both bodies have mass, no detection test), the partition's split threshold in 1/cells,
+    # and NACC's dilation past its threshold that makes a particle damaged for the partition.
+    max_gap: float = CONTACT_GAP_CELLS
+    split_gradient: float = SPLIT_GRADIENT_CELLS
+    damage_dilation: float = DAMAGE_DILATION
+    path: InitVar[str] = "contact"
+
+    def __post_init__(self, path: str) -> None:
+        given = {name: getattr(self, name) for name in ("mode", "impulse_scale", "friction", "fragments", "max_gap",
+                                                        "split_gradient", "damage_dilation")}
+        checked = {"mode": _choice(given, "mode", path, CONTACT_MODES),
+                   "impulse_scale": _number(given, "impulse_scale", path, ge=0.0, le=2.0),
+                   "friction": _number(given, "friction", path, ge=0.0),
+                   "fragments": _boolean(given, "fragments", path),
+                   "max_gap": math.inf if given["max_gap"] == math.inf
+                   else _number(given, "max_gap", path, gt=0.0),
+                   "split_gradient": _number(given, "split_gradient", path, gt=0.0),
+                   "damage_dilation": _number(given, "damage_dilation", path, ge=0.0)}
+        for name, value in checked.items():
+            object.__setattr__(self, name, value)
 
 
 @dataclass(frozen=True)
-class GroundConfig:
-    """Half-space z >= height with Coulomb friction."""
+class GroundBoundary:
+    """Half-space z >= height with Coulomb friction (YAML ``{type: ground, height, friction}``)."""
 
     height: float
     friction: float = DEFAULT_GROUND_FRICTION
-    type: Literal["ground"] = "ground"
+    path: InitVar[str] = "ground"
+
+    def __post_init__(self, path: str) -> None:
+        given = {"height": self.height, "friction": self.friction}
+        object.__setattr__(self, "height", _number(given, "height", path))
+        object.__setattr__(self, "friction", _number(given, "friction", path, ge=0.0))
 
 
 @dataclass(frozen=True)
-class BoxConfig:
-    """Domain walls (3 cells thick)."""
+class BoxBoundary:
+    """Domain walls, 3 cells thick (YAML ``{type: box, condition}``): slip, sticky or separate."""
 
     condition: Literal["slip", "sticky", "separate"] = "slip"
-    type: Literal["box"] = "box"
+    path: InitVar[str] = "box"
+
+    def __post_init__(self, path: str) -> None:
+        object.__setattr__(self, "condition", _choice({"condition": self.condition}, "condition", path,
+                                                      BOX_CONDITIONS))
 
 
-BoundaryConfig = GroundConfig | BoxConfig
+Boundary = GroundBoundary | BoxBoundary
 
 
 @dataclass(frozen=True)
@@ -172,14 +241,14 @@ class SceneConfig:
     """A fully validated scene with every default filled in."""
 
     name: str
-    domain: DomainConfig
+    domain: Domain
     objects: tuple[ObjectConfig, ...]
     frames: int = DEFAULT_FRAMES
     frame_dt: float = DEFAULT_FRAME_DT
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
-    contact: ContactConfig = ContactConfig()
+    contact: ContactSettings = ContactSettings()
     cfl: float = DEFAULT_CFL
-    boundaries: tuple[BoundaryConfig, ...] = (BoxConfig(),)
+    boundaries: tuple[Boundary, ...] = (BoxBoundary(),)
     seed: int = 0
     source: Path | None = field(default=None, compare=False)
 
@@ -187,12 +256,12 @@ class SceneConfig:
         """Plain-YAML form of the resolved scene; ``parse_scene(to_dict())`` gives it back."""
         return {
             "name": self.name,
-            "domain": {"min": list(self.domain.min), "max": list(self.domain.max),
+            "domain": {"min": list(self.domain.lower), "max": list(self.domain.upper),
                        "grid": self.domain.grid},
             "frames": self.frames,
             "frame_dt": self.frame_dt,
             "gravity": list(self.gravity),
-            "contact": {"mode": self.contact.mode, "strength": self.contact.strength,
+            "contact": {"mode": self.contact.mode, "impulse_scale": self.contact.impulse_scale,
                         "friction": self.contact.friction, "fragments": self.contact.fragments},
             "cfl": self.cfl,
             "seed": self.seed,
@@ -201,8 +270,8 @@ class SceneConfig:
         }
 
 
-def _boundary_dict(boundary: BoundaryConfig) -> dict[str, Any]:
-    if isinstance(boundary, GroundConfig):
+def _boundary_dict(boundary: Boundary) -> dict[str, Any]:
+    if isinstance(boundary, GroundBoundary):
         return {"type": "ground", "height": boundary.height, "friction": boundary.friction}
     return {"type": "box", "condition": boundary.condition}
 
@@ -359,32 +428,28 @@ def _default_name(default_name: str, source: Path | None) -> str:
                      "the file")
 
 
-def _parse_domain(value: Any) -> DomainConfig:
+def _parse_domain(value: Any) -> Domain:
     data = _mapping(value, "domain")
     _check_keys(data, "domain", ("min", "max", "grid"), required=("min", "max", "grid"))
-    lower = _vec3(data, "min", "domain")
-    upper = _vec3(data, "max", "domain")
-    for axis in range(3):
-        if not upper[axis] > lower[axis]:
-            raise SceneError(f"domain.max[{axis}]",
-                             f"{_fmt(upper[axis])} is not > domain.min[{axis}] = "
-                             f"{_fmt(lower[axis])}")
-    grid = _integer(data, "grid", "domain", ge=8)
-    return DomainConfig(min=lower, max=upper, grid=grid)
+    return Domain(lower=data["min"], upper=data["max"], grid=data["grid"])
 
 
-def _parse_contact(value: Any) -> ContactConfig:
+# Keys renamed since scenes were first written: the old name gets a line that names the new one.
+_RENAMED_CONTACT_KEYS = {"strength": "impulse_scale"}
+
+
+def _parse_contact(value: Any) -> ContactSettings:
     data = _mapping(value, "contact")
-    _check_keys(data, "contact", ("mode", "strength", "friction", "fragments"))
-    return ContactConfig(mode=_choice(data, "mode", "contact", CONTACT_MODES, "collision"),
-                         # s > 2 leaves (1 - s) v_n with |1 - s| > 1: the impulse would add energy.
-                         strength=_number(data, "strength", "contact", 1.0, ge=0.0, le=2.0),
-                         friction=_number(data, "friction", "contact", 0.0, ge=0.0),
-                         fragments=_boolean(data, "fragments", "contact", DEFAULT_FRAGMENTS))
+    for old, new in _RENAMED_CONTACT_KEYS.items():
+        if old in data:
+            raise SceneError(f"contact.{old}", f"this key is now called '{new}' (the same meaning and values)")
+    _check_keys(data, "contact", ("mode", "impulse_scale", "friction", "fragments"))
+    given = {key: data[key] for key in ("mode", "impulse_scale", "friction", "fragments") if key in data}
+    return ContactSettings(**given)
 
 
-def _parse_boundaries(items: list[Any], domain: DomainConfig) -> tuple[BoundaryConfig, ...]:
-    out: list[BoundaryConfig] = []
+def _parse_boundaries(items: list[Any], domain: Domain) -> tuple[Boundary, ...]:
+    out: list[Boundary] = []
     seen: dict[str, int] = {}
     for i, item in enumerate(items):
         path = f"boundaries[{i}]"
@@ -396,14 +461,12 @@ def _parse_boundaries(items: list[Any], domain: DomainConfig) -> tuple[BoundaryC
         seen[kind] = i
         if kind == "ground":
             _check_keys(data, path, ("type", "height", "friction"), required=("height",))
-            height = _number(data, "height", path, ge=domain.min[2], lt=domain.max[2])
-            out.append(GroundConfig(height=height,
-                                    friction=_number(data, "friction", path,
-                                                     DEFAULT_GROUND_FRICTION, ge=0.0)))
+            height = _number(data, "height", path, ge=domain.lower[2], lt=domain.upper[2])
+            out.append(GroundBoundary(height=height, friction=data.get("friction", DEFAULT_GROUND_FRICTION),
+                                      path=path))
         else:
             _check_keys(data, path, ("type", "condition"))
-            out.append(BoxConfig(condition=_choice(data, "condition", path, BOX_CONDITIONS,
-                                                   "slip")))  # type: ignore[arg-type]
+            out.append(BoxBoundary(condition=data.get("condition", "slip"), path=path))
     return tuple(out)
 
 

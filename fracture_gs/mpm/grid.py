@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from fracture_gs.mpm.types import BLOCK, Domain
+from fracture_gs.mpm.types import BLOCK, Domain, grid_resolution
 
 WALL_CELLS = 3  # thickness of the domain walls, in cells
 
@@ -28,7 +28,7 @@ class GridGeometry:
     @staticmethod
     def from_domain(domain: Domain, n_grids: int) -> "GridGeometry":
         cells = tuple(math.ceil((hi - lo) / domain.dx - 1e-6) for lo, hi in zip(domain.lower, domain.upper))
-        blocks = tuple(r // BLOCK for r in domain.resolution)
+        blocks = tuple(r // BLOCK for r in grid_resolution(domain))
         return GridGeometry(tuple(float(v) for v in domain.lower), float(domain.dx),
                             blocks, cells, int(n_grids))  # type: ignore[arg-type]
 

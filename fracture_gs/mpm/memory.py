@@ -20,7 +20,7 @@ import torch
 
 from fracture_gs.config.scene import SceneConfig, SceneError
 from fracture_gs.mpm.grid import GridFields, GridGeometry
-from fracture_gs.mpm.scene import primitive_lattice, solver_domain
+from fracture_gs.mpm.scene import primitive_lattice
 
 # Peak bytes per candidate particle while a primitive is sampled (float64 centres, jittered
 # positions, signed distance, masks).
@@ -41,7 +41,7 @@ def grid_memory_bytes(config: SceneConfig) -> tuple[int, int, int]:
     collision = config.contact.mode == "collision"
     n_grids = len(config.objects) if collision else 1
     fragments = config.contact.fragments  # a second field per grid, as the solver allocates
-    geometry = GridGeometry.from_domain(solver_domain(config), 2 * n_grids if fragments else n_grids)
+    geometry = GridGeometry.from_domain(config.domain, 2 * n_grids if fragments else n_grids)
     fields = GridFields.zeros(geometry, torch.device("meta"),
                               with_contact=collision and n_grids >= 2, with_fragments=fragments)
     total = sum(t.numel() * t.element_size() for t in vars(fields).values()

@@ -69,18 +69,18 @@ def boundaries(bins: ParticleBins, geometry: GridGeometry, wall_condition: str, 
         reference.boundaries(grid, geometry, wall_condition, ground_height, ground_friction, mass_eps)
 
 
-def collision(bins: ParticleBins, geometry: GridGeometry, strength: float, friction: float, mass_eps: float,
+def collision(bins: ParticleBins, geometry: GridGeometry, impulse_scale: float, friction: float, mass_eps: float,
               max_gap: float, grid: GridFields, backend: str = "auto") -> None:
     """Contact impulses between object grids (docs/formulas.md §7) where the bodies' mass centres at a node are
     closer than ``max_gap`` (a length) along the contact normal. A body whose mass centre lies within
     ``CONTACT_INSIDE_CELLS`` of a node gives no normal there (the other body's is used)."""
     inside = CONTACT_INSIDE_CELLS * geometry.dx
     if use_compiled(grid.mass.device, backend):
-        compiled_module().mpm_collision(bins.contact_blocks, *geometry.args(), strength, friction, mass_eps,
+        compiled_module().mpm_collision(bins.contact_blocks, *geometry.args(), impulse_scale, friction, mass_eps,
                                         max_gap, inside, grid.mass, grid.velocity, grid.mass_gradient,
                                         grid.position_moment)
     else:
-        reference.collision(grid, strength, friction, mass_eps, max_gap, inside)
+        reference.collision(grid, impulse_scale, friction, mass_eps, max_gap, inside)
 
 
 def fragment_reference(bins: ParticleBins, x: torch.Tensor, grid_id: torch.Tensor, geometry: GridGeometry,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import torch
 
-from fracture_gs.mpm.types import BLOCK, Domain
+from fracture_gs.mpm.types import BLOCK, Domain, grid_resolution
 
 
 def spatial_order(x: torch.Tensor, obj_id: torch.Tensor, domain: Domain) -> torch.Tensor:
@@ -23,7 +23,7 @@ def spatial_order(x: torch.Tensor, obj_id: torch.Tensor, domain: Domain) -> torc
     if x.ndim != 2 or x.shape[1] != 3 or obj_id.shape != x.shape[:1]:
         raise ValueError(f"spatial_order: x must be (N,3) and obj_id (N,), got {tuple(x.shape)}, "
                          f"{tuple(obj_id.shape)}")
-    resolution = torch.tensor(domain.resolution, device=x.device)
+    resolution = torch.tensor(grid_resolution(domain), device=x.device)
     lower = torch.tensor(domain.lower, dtype=x.dtype, device=x.device)
     # The stencil base node, as the kernels compute it: floor((x - lower) / dx - 1/2).
     base = torch.floor((x - lower) * (1.0 / domain.dx) - 0.5).long()

@@ -267,7 +267,7 @@ def boundaries(grid: GridFields, geometry: GridGeometry, wall_condition: str, gr
     grid.velocity.copy_(torch.where((grid.mass > mass_eps)[..., None], new_v, velocity))
 
 
-def collision(grid: GridFields, strength: float, friction: float, mass_eps: float, max_gap: float,
+def collision(grid: GridFields, impulse_scale: float, friction: float, mass_eps: float, max_gap: float,
               inside: float) -> None:
     """Bardenhagen contact between every pair of object grids, pairs in a fixed order (docs/formulas.md §7).
 
@@ -307,11 +307,11 @@ def collision(grid: GridFields, strength: float, friction: float, mass_eps: floa
             active = both & (normal_len[:, 0] > 1e-6) & (gap < max_gap) & (vn[:, 0] > 0)
             reduced = (ma * mb / (ma + mb).clamp_min(1e-30))[:, None]
             jn = reduced * vn
-            impulse = -strength * jn * normal
+            impulse = -impulse_scale * jn * normal
             if friction > 0:
                 vt = vrel - vn * normal
                 vt_norm = vt.norm(dim=-1, keepdim=True)
-                jt = torch.minimum(friction * strength * jn, reduced * vt_norm)
+                jt = torch.minimum(friction * impulse_scale * jn, reduced * vt_norm)
                 impulse = impulse - torch.where(vt_norm > 1e-12, jt * vt / vt_norm.clamp_min(1e-30),
                                                 torch.zeros_like(vt))
             impulse = torch.where(active[:, None], impulse, torch.zeros_like(impulse))

@@ -21,11 +21,10 @@ import numpy as np
 import torch
 from scipy.spatial.transform import Rotation
 
-from fracture_gs.config.scene import (BoxConfig, GroundConfig, MaterialConfig, ObjectConfig,
-                                      PrimitiveConfig, SceneConfig, SceneError, TransformConfig)
+from fracture_gs.config.scene import (Boundary, ContactSettings, Domain, GroundBoundary, MaterialConfig,
+                                      ObjectConfig, PrimitiveConfig, SceneConfig, SceneError, TransformConfig)
 from fracture_gs.mpm.ordering import spatial_order
-from fracture_gs.mpm.types import (BoxBoundary, Boundary, ContactSettings, Domain,
-                                   GroundBoundary, ParticleSet)
+from fracture_gs.mpm.types import ParticleSet
 
 WALL_CELLS = 3  # thickness of the box walls; objects must start inside this margin
 # Share of an object's particles lying inside another object above which the scene is reported
@@ -229,8 +228,8 @@ def check_inside_domain(config: SceneConfig, index: int, x: np.ndarray) -> None:
     margin = WALL_CELLS * config.domain.dx
     lo, hi = x.min(axis=0), x.max(axis=0)
     for axis, name in enumerate("xyz"):
-        inner_lo = config.domain.min[axis] + margin
-        inner_hi = config.domain.max[axis] - margin
+        inner_lo = config.domain.lower[axis] + margin
+        inner_hi = config.domain.upper[axis] - margin
         if lo[axis] < inner_lo:
             raise SceneError(key, f"object '{obj.name}' reaches {name} = {lo[axis]:.4g}, outside "
                              f"the domain interior [{inner_lo:.4g}, {inner_hi:.4g}] "
@@ -240,7 +239,7 @@ def check_inside_domain(config: SceneConfig, index: int, x: np.ndarray) -> None:
                              f"the domain interior [{inner_lo:.4g}, {inner_hi:.4g}] "
                              f"(domain minus {WALL_CELLS} wall cells)")
     for boundary in config.boundaries:
-        if isinstance(boundary, GroundConfig) and lo[2] < boundary.height:
+        if isinstance(boundary, GroundBoundary) and lo[2] < boundary.height:
             raise SceneError(key, f"object '{obj.name}' reaches z = {lo[2]:.4g}, below the "
                              f"ground at height {boundary.height:g}")
 
@@ -305,21 +304,6 @@ def _material_rows(config: SceneConfig, index: int, parts: np.ndarray
     return by_part
 
 
-def solver_domain(config: SceneConfig) -> Domain:
-    return Domain(lower=config.domain.min, upper=config.domain.max, grid=config.domain.grid)
-
-
-def solver_boundaries(config: SceneConfig) -> list[Boundary]:
-    out: list[Boundary] = []
-    for boundary in config.boundaries:
-        if isinstance(boundary, GroundConfig):
-            out.append(GroundBoundary(height=boundary.height, friction=boundary.friction))
-        else:
-            assert isinstance(boundary, BoxConfig)
-            out.append(BoxBoundary(condition=boundary.condition))
-    return out
-
-
 def build_scene(config: SceneConfig, device: torch.device | None = None) -> BuiltScene:
     """Sample / load every object, check it, and assemble the ParticleSet and materials."""
     device = device if device is not None else torch.device("cpu")
@@ -358,17 +342,14 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
     tensors = {k: torch.as_tensor(np.concatenate(v)).to(device=device, dtype=dtypes[k])
                for k, v in columns.items()}
     particles = ParticleSet(**tensors)
-    domain = solver_domain(config)
+    domain = config.domain
     # Objects stay contiguous; inside each, particles of one grid block sit together (faster
     # transfers). gaussian_index keeps the link to the trained Gaussians.
     particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
     return BuiltScene(particles=particles, materials=materials,
                       material_keys=keys, object_names=[o.name for o in config.objects],
                       domain=domain,
-                      contact=ContactSettings(mode=config.contact.mode,
-                                              strength=config.contact.strength,
-                                              friction=config.contact.friction,
-                                              fragments=config.contact.fragments),
-                      boundaries=solver_boundaries(config), gravity=config.gravity,
+                      contact=config.contact,
+                      boundaries=list(config.boundaries), gravity=config.gravity,
                       cfl=config.cfl, seed=config.seed,
                       warnings=tuple(overlap_warnings(config, objects)))

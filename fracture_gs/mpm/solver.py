@@ -190,7 +190,7 @@ class CollisionMPM:
             field_bins, fragments = self._partition(bins, dt)
         ops.grid_update(field_bins, fields, dt, self.gravity, self.mass_eps, g, backend)
         if self.use_contact or fragments is not None:
-            ops.collision(field_bins, fields, self.contact.strength, self.contact.friction, self.mass_eps,
+            ops.collision(field_bins, fields, self.contact.impulse_scale, self.contact.friction, self.mass_eps,
                           self.max_contact_gap, g, backend)
         self.external_impulse.step(field_bins.touched, g, dt, lambda: ops.boundaries(
             field_bins, fields, self.wall_condition, self.ground_height, self.ground_friction, self.mass_eps, g,

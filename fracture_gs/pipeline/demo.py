@@ -144,7 +144,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
         # Ours opens cracks inside objects (contact.fragments), so the teapot's pieces come apart
         # instead of hanging together by the grid; the mls baseline (PhysGaussian / GIC style) has
         # no such thing.
-        "contact": {"mode": mode, "strength": 1.0, "friction": 0.1, "fragments": mode == "collision"},
+        "contact": {"mode": mode, "impulse_scale": 1.0, "friction": 0.1, "fragments": mode == "collision"},
         "cfl": 0.3,
         "boundaries": [{"type": "ground", "height": ground, "friction": 0.5},
                        {"type": "box", "condition": "slip"}],
