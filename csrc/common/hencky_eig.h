@@ -121,7 +121,8 @@ struct EigProjection {
 // tau: Kirchhoff stress of F_E; proj: what projected_deformation needs to form F_E; dissipated: the
 // energy per unit rest volume the update took (the law's `dissipated`).
 // Returns false (outputs meaningless) where the caller must use constitutive_update instead:
-// see the file comment.
+// see the file comment. Laws: MaterialModels, or OneModel<Model> where every row has that model.
+template <class Laws = MaterialModels>
 HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, const float F[9],
                                                           float state[kMaxStateFields], float tau[9],
                                                           EigProjection* proj, float* dissipated) {
@@ -152,7 +153,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
   const double stretch_sq_min = fast_math::min_of(fast_math::min_of(stretch_sq[0], stretch_sq[1]), stretch_sq[2]);
   // Bitwise & and | (no short circuit) on the conditions: branches would stop the vectoriser.
   const bool valid = (probe == 0.f) & (det > 0.0) & (stretch_sq_min > (double)kEigMinStretchSq) &
-                     MaterialModels::known(m);
+                     Laws::known(m);
 
   // From here on double (the loop stays vectorised, 4 lanes per instruction): in float a return
   // map lands ~1e-5 K^2 off its yield surface for strains of order 1, where the yield function is
@@ -172,7 +173,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
   const double dev_norm = sqrt(dev[0] * dev[0] + dev[1] * dev[1] + dev[2] * dev[2]);
   const double dev_max = fast_math::max_of(fast_math::max_of(dev[0], dev[1]), dev[2]);
   const StrainInvariants s{e, 1.0 / (det > 0.0 ? det : 1.0), dev_norm, dev_max, 0.0};
-  const LawResult ret = MaterialModels::update(m, state, s);
+  const LawResult ret = Laws::update(m, state, s);
   proj->projected = ret.projected;
 #pragma GCC unroll 9
   for (int i = 0; i < 9; ++i) proj->Q[i] = Q[i];
@@ -181,8 +182,8 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_stress_eig(const MaterialRow& m, 
   // tau = Q diag(tau_i) Q^T with the law's principal stresses.
   double d[3];
 #pragma GCC unroll 9
-  for (int i = 0; i < 3; ++i) d[i] = MaterialModels::principal_stress(m, ret, dev[i], e);
-  *dissipated = (float)MaterialModels::dissipated(m, state, ret, dev, e);
+  for (int i = 0; i < 3; ++i) d[i] = Laws::principal_stress(m, ret, dev[i], e);
+  *dissipated = (float)Laws::dissipated(m, state, ret, dev, e);
 #pragma GCC unroll 9
   for (int k = 0; k < kMaxStateFields; ++k) state[k] = ret.state[k];
 #pragma GCC unroll 9
@@ -296,7 +297,8 @@ HOST_DEVICE FGS_FORCE_INLINE float sym3_norm_sq(const float X[6]) {
 // (outputs meaningless) where the caller must run the eigen path (constitutive_stress_eig)
 // instead: isochoric strains beyond kSmallStrainNorm, a state the law does not decide (within
 // float error of a threshold, a non-linear stress, dissipation), or anything the eigen path rejects.
-// Where it returns true the update dissipated nothing.
+// Where it returns true the update dissipated nothing. Laws as for constitutive_stress_eig.
+template <class Laws = MaterialModels>
 HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m, const float F[9],
                                                             float state[kMaxStateFields], float F_out[9],
                                                             float tau[9]) {
@@ -350,7 +352,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   // its thresholds to the eigen path (LawResult::decided).
   const StrainInvariants invariants{e, 1.0 / (det > 0.0 ? det : 1.0), dev_norm, 0.81649658092772603273 * dev_norm,
                                     2e-6 * (double)sqrtf(y_norm_sq) + 1e-12};
-  const LawResult ret = MaterialModels::update(m, state, invariants);
+  const LawResult ret = Laws::update(m, state, invariants);
 #pragma GCC unroll 9
   for (int k = 0; k < kMaxStateFields; ++k) state[k] = ret.state[k];
 
@@ -389,7 +391,7 @@ HOST_DEVICE FGS_FORCE_INLINE bool constitutive_small_strain(const MaterialRow& m
   tau[6] = t02; tau[7] = t12; tau[8] = t22;
   return (probe == 0.f) & (y_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) &
          (w_norm_sq <= kSmallStrainNorm * kSmallStrainNorm) & (det > kSmallStrainMinDet) &
-         MaterialModels::known(m) & (ret.decided > 0.0);
+         Laws::known(m) & (ret.decided > 0.0);
 }
 
 }  // namespace fgs

@@ -20,10 +20,6 @@ struct ModelList {
   }();
   static_assert(((Models::kStateFields >= 1 && Models::kStateFields <= kStateCapacity) && ...),
                 "a model has 1 to kStateCapacity state fields");
-  static_assert([] {
-    int index = 0;
-    return ((Models::kCode == index++) && ...);
-  }(), "a model's kCode is its position in the list");
 
   // True if the row's model is one of these.
   HOST_DEVICE FGS_FORCE_INLINE static bool known(const MaterialRow& m) {
@@ -64,8 +60,16 @@ struct ModelList {
 
   // Calls visit(Model{}) once per model, in list order (the bindings describe them).
   template <class Visit>
-  static void for_each(Visit&& visit) {
+  static constexpr void for_each(Visit&& visit) {
     (visit(Models{}), ...);
+  }
+
+  // Calls visit(Model{}) for the model whose code is `code`; returns false if none has it.
+  template <class Visit>
+  static bool visit_code(float code, Visit&& visit) {
+    bool found = false;
+    ((!found && code == (float)Models::kCode ? (visit(Models{}), found = true) : false), ...);
+    return found;
   }
 
  private:
@@ -91,5 +95,37 @@ using MaterialModels = ModelList<
     VonMisesModel>;
 
 constexpr int kMaxStateFields = MaterialModels::kMaxStateFields;
+static_assert([] {
+  int index = 0;
+  bool ordered = true;
+  MaterialModels::for_each([&](auto model) { ordered = ordered && decltype(model)::kCode == index++; });
+  return ordered;
+}(), "a model's kCode is its position in MaterialModels");
+
+// The same interface as MaterialModels for rows that all have one model: the law of that model alone,
+// no selection (the CPU paths run a batch whose lanes share a model this way). The state fields the
+// model does not own keep their values, as with MaterialModels::update.
+template <class Model>
+struct OneModel {
+  HOST_DEVICE FGS_FORCE_INLINE static bool known(const MaterialRow& m) { return m.model == (float)Model::kCode; }
+
+  HOST_DEVICE FGS_FORCE_INLINE static LawResult update(const MaterialRow& m, const float* state,
+                                                       const StrainInvariants& s) {
+    LawResult r = Model::update(m, state, s);
+    FGS_UNROLL
+    for (int k = Model::kStateFields; k < kMaxStateFields; ++k) r.state[k] = state[k];
+    return r;
+  }
+
+  HOST_DEVICE FGS_FORCE_INLINE static double principal_stress(const MaterialRow& m, const LawResult& r, double dev_i,
+                                                              double e) {
+    return Model::principal_stress(m, r, dev_i, e);
+  }
+
+  HOST_DEVICE FGS_FORCE_INLINE static double dissipated(const MaterialRow& m, const float* state, const LawResult& r,
+                                                        const double dev[3], double e) {
+    return Model::dissipated(m, state, r, dev, e);
+  }
+};
 
 }  // namespace fgs

@@ -37,7 +37,8 @@ class FlushDenormals {
 
 struct ConstitutiveBatch {
   float F[9][kBatchLanes];  // F_trial (input)
-  float state_in[kMaxStateFields][kBatchLanes];
+  // The lanes' states: the fields a stream's particles do not have (beyond its stride) stay 0.
+  float state_in[kMaxStateFields][kBatchLanes] = {};
   float row[kMatFields][kBatchLanes];  // material parameters of each lane
   float F_out[9][kBatchLanes];
   float state_out[kMaxStateFields][kBatchLanes];
@@ -45,18 +46,18 @@ struct ConstitutiveBatch {
   float dissipated[kBatchLanes];  // energy per unit rest volume the update took (output)
   int32_t valid[kBatchLanes];  // 1 where the eigen path handled the lane (int32: a bool store blocks vectorising)
 
-  // Lane l takes F_trial, the particle's state (stride floats) and its material-table row
-  // (kMatFields floats).
+  // Lane l takes F_trial, the particle's state (stride floats, stride the same for every lane of
+  // the batch's life) and its material-table row (kMatFields floats).
   void set(int l, const float* F_trial, const float* state, int stride, const float* mat_row) {
     #pragma GCC unroll 9
     for (int i = 0; i < 9; ++i) F[i][l] = F_trial[i];
-    #pragma GCC unroll 9
-    for (int k = 0; k < kMaxStateFields; ++k) state_in[k][l] = k < stride ? state[k] : 0.f;
+    for (int k = 0; k < stride; ++k) state_in[k][l] = state[k];
     #pragma GCC unroll 9
     for (int k = 0; k < kMatFields; ++k) row[k][l] = mat_row[k];
   }
 
-  // Lanes [count, kBatchLanes) get an undeformed particle of model 0 (results unused).
+  // Lanes [count, kBatchLanes) (count >= 1) get an undeformed particle with lane 0's material and
+  // a zero state (results unused), so that a batch of one model stays one.
   void pad(int count) {
     for (int l = count; l < kBatchLanes; ++l) {
       #pragma GCC unroll 9
@@ -64,17 +65,30 @@ struct ConstitutiveBatch {
       #pragma GCC unroll 9
       for (int k = 0; k < kMaxStateFields; ++k) state_in[k][l] = 0.f;
       #pragma GCC unroll 9
-      for (int k = 0; k < kMatFields; ++k) row[k][l] = 0.f;
+      for (int k = 0; k < kMatFields; ++k) row[k][l] = row[k][0];
     }
+  }
+
+  // Calls run(Laws{}) with OneModel<Model> where every lane has that model (the common case: objects
+  // are contiguous), else with MaterialModels.
+  template <class Run>
+  void with_laws(Run&& run) const {
+    const float code = row[kMatModel][0];
+    bool one = true;
+    for (int l = 1; l < kBatchLanes; ++l) one = one && row[kMatModel][l] == code;
+    const bool dispatched = one && MaterialModels::visit_code(code, [&](auto model) {
+      run(OneModel<decltype(model)>{});
+    });
+    if (!dispatched) run(MaterialModels{});
   }
 
   // Runs the update on lanes [0, count) (pad() the rest first).
   void run(int count) {
-    {
+    with_laws([&](auto laws) {
       FlushDenormals guard;
-      eigen_lanes(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0], &tau[0][0], dissipated,
-                  valid);
-    }
+      eigen_lanes<decltype(laws)>(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0], &tau[0][0],
+                                  dissipated, valid);
+    });
     for (int l = 0; l < count; ++l) {
       if (valid[l]) continue;
       float Fl[9], tl[9], mat_row[kMatFields], state[kMaxStateFields];
@@ -109,6 +123,7 @@ struct ConstitutiveBatch {
   // The eigen path (constitutive_stress_eig, then projected_deformation) on every lane; arrays are
   // [component][lane]. Two vectorised loops: the stress half on every lane, then F_E =
   // projected_deformation only if some lane was projected (most batches keep F: no exp needed).
+  template <class Laws>
   static void eigen_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT state_in,
                           const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
                           float* FGS_RESTRICT state_new, float* FGS_RESTRICT tau_out,
@@ -123,7 +138,7 @@ struct ConstitutiveBatch {
       const MaterialRow m = load_lane(F_in, state_in, rows, l, Fl, state);
       EigProjection proj;
       float taken;
-      ok[l] = constitutive_stress_eig(m, Fl, state, tl, &proj, &taken) ? 1 : 0;
+      ok[l] = constitutive_stress_eig<Laws>(m, Fl, state, tl, &proj, &taken) ? 1 : 0;
       dissipated[l] = taken;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
@@ -163,11 +178,15 @@ struct ConstitutiveBatch {
   // state_out and tau hold the result (and the update dissipated nothing). The other lanes'
   // outputs are meaningless.
   void run_small_strain(int32_t small[kBatchLanes]) {
-    FlushDenormals guard;
-    small_strain_lanes(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0], &tau[0][0], small);
+    with_laws([&](auto laws) {
+      FlushDenormals guard;
+      small_strain_lanes<decltype(laws)>(&F[0][0], &state_in[0][0], &row[0][0], &F_out[0][0], &state_out[0][0],
+                                         &tau[0][0], small);
+    });
     for (int l = 0; l < kBatchLanes; ++l) dissipated[l] = 0.f;
   }
 
+  template <class Laws>
   static void small_strain_lanes(const float* FGS_RESTRICT F_in, const float* FGS_RESTRICT state_in,
                                  const float* FGS_RESTRICT rows, float* FGS_RESTRICT F_E,
                                  float* FGS_RESTRICT state_new, float* FGS_RESTRICT tau_out,
@@ -176,7 +195,7 @@ struct ConstitutiveBatch {
     for (int l = 0; l < kBatchLanes; ++l) {
       float Fl[9], Fo[9], tl[9], state[kMaxStateFields];
       const MaterialRow m = load_lane(F_in, state_in, rows, l, Fl, state);
-      small[l] = constitutive_small_strain(m, Fl, state, Fo, tl) ? 1 : 0;
+      small[l] = constitutive_small_strain<Laws>(m, Fl, state, Fo, tl) ? 1 : 0;
 #pragma GCC unroll 9
       for (int i = 0; i < 9; ++i) {
         tau_out[i * kBatchLanes + l] = tl[i];
