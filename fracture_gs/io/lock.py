@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
+from typing import IO
 from pathlib import Path
 
 
@@ -18,9 +19,11 @@ class FolderBusy(ValueError):
 
 @contextlib.contextmanager
 def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
-                what: str = "folder") -> Iterator[None]:
+                what: str = "folder", remove: bool = False) -> Iterator[None]:
     """Hold the lock file ``lock_name`` in ``folder`` (made if missing) for the block;
-    ``tool`` and ``what`` name the command and the folder in the message.
+    ``tool`` and ``what`` name the command and the folder in the message. With ``remove`` the
+    file is deleted when the block ends, while the lock is still held (a run that finds the
+    file it locked deleted under it locks the new one instead).
 
     Raises:
         FolderBusy: another process holds it.
@@ -32,14 +35,34 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
         return
     root = Path(folder)
     root.mkdir(parents=True, exist_ok=True)
-    with open(root / lock_name, "a+", encoding="utf-8") as handle:
+    path = root / lock_name
+    while True:
+        handle = open(path, "a+", encoding="utf-8")
         try:
             fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
+            handle.close()
             raise FolderBusy(f"{root}: another {tool} run is writing this {what} (it holds "
                              f"{lock_name}); wait for it or choose another output folder") from None
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"{os.getpid()}\n")
-        handle.flush()
-        yield
+        if _same_file(handle, path):
+            break
+        handle.close()  # the holder before us removed the file: lock the one there now
+    with handle:
+        try:
+            handle.seek(0)
+            handle.truncate()
+            handle.write(f"{os.getpid()}\n")
+            handle.flush()
+            yield
+        finally:
+            if remove:
+                with contextlib.suppress(OSError):
+                    path.unlink()
+
+
+def _same_file(handle: IO[str], path: Path) -> bool:
+    """Whether the open ``handle`` is still the file at ``path``."""
+    try:
+        return os.path.samestat(os.fstat(handle.fileno()), os.stat(path))
+    except OSError:
+        return False
