@@ -65,6 +65,17 @@ def test_the_capture_is_small_and_says_where_it_comes_from() -> None:
     assert (len(train), len(test)) == (9, 3) and (test.width, test.height) == (100, 75)
 
 
+def test_the_data_check_prints_the_split_and_the_up_direction(capsys: pytest.CaptureFixture) -> None:
+    from fracture_gs.data.__main__ import main as data_main
+
+    assert data_main([str(SKULL), "--split", "test", "--holdout-every", str(HOLDOUT)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "views      3 of 100x75 pixels" in lines and "masks      yes" in lines
+    up = next(line for line in lines if line.startswith("up "))
+    vector = np.array([float(v) for v in up[up.index("[") + 1:up.index("]")].split(",")])
+    assert angle_deg(vector, TABLE_NORMAL) < 10 and "level cameras" in up
+
+
 def test_masks_composite_the_photos_on_the_training_background() -> None:
     """The table around the skull is gone from what the photometric fit sees: every pixel
     outside the mask is the background colour, black or white."""

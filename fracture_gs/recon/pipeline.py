@@ -433,8 +433,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     write_ply(folder.file(*model_layout.point_cloud_path(config.model_path, iteration)
                           .split(os.sep)[-3:]), gaussians)
     _write_particles(folder, particles, part_id, gaussian_index, config)
-    placement = measure_object(particles.position, up, up_source)
-    write_object_frame(folder.file(model_layout.OBJECT_FILE), placement)
+    where = measure_object(particles.position, up, up_source)
+    write_object_frame(folder.file(model_layout.OBJECT_FILE), where)
     model_folder.remove_earlier_runs(config.model_path, {iteration, *config.save_iterations})
     with timer.stage("evaluation"):
         summary["train"] = evaluate_views(gaussians, inputs.train, device)
@@ -452,7 +452,7 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     print(f"[train] {config.model_path}: train PSNR {summary['train']['psnr']:.2f} dB{test_text}; "
           f"{particles.num_surface} surface + {particles.num_interior} interior particles; "
           f"{timer.total()['wall_s']:.0f} s", file=out)
-    print(f"[train] object in model coordinates: {placement.summary()}", file=out)
+    print(f"[train] object in model coordinates: {where.summary()}", file=out)
     return summary
 
 
