@@ -16,6 +16,7 @@ import pytest
 import yaml
 
 from fracture_gs.cli import evaluate as evaluate_cli
+from fracture_gs.cli import render as render_cli
 from fracture_gs.cli import render_model as render_model_cli
 from fracture_gs.cli import simulate as simulate_cli
 from fracture_gs.cli.train import main as train_main
@@ -191,3 +192,11 @@ def test_the_placed_skull_rests_on_its_base(skull: tuple[Path, str], tmp_path: P
     u, _, vt = np.linalg.svd(a.T @ b)
     turn = vt.T @ np.diag([1, 1, np.sign(np.linalg.det(vt.T @ u.T))]) @ u.T
     assert np.degrees(np.arccos(np.clip((np.trace(turn) - 1) / 2, -1, 1))) < 3
+    # drawn from the held-out views, moved with the skull, on the black it was trained on
+    sim = tmp_path / "output" / "sims" / "skull_on_the_floor"
+    assert render_cli.main(["--sim", str(sim), "--views", "test", "--frames", "3",
+                            "--resolution", "50", "38"]) == 0
+    pictures = sorted((sim / "renders").glob("test_*/00003.png"))
+    assert len(pictures) == 3
+    image = cv2.imread(str(pictures[0]))
+    assert image[0, 0].max() == 0 and image.max() > 100
