@@ -359,3 +359,21 @@ def test_halo_counts_pixels_off_the_background_outside_the_dilated_mask() -> Non
     assert 40 * 40 - 14 * 14 <= result.outside < 40 * 40 - 10 * 10
     assert result.share == pytest.approx(10 / result.outside)
     assert halo(render, mask, (0.5, 0.5, 0.5), dilate_px=2).differing > 1000
+
+
+def test_evaluating_a_model_without_test_views_names_the_hold_out(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture) -> None:
+    """A COLMAP model trained on every view: evaluate.py -m says how to get a test split."""
+    from fracture_gs.cli import evaluate as evaluate_cli
+    from fracture_gs.gaussians import GaussianModel, write_ply
+
+    write_colmap(str(tmp_path / "photos"), rig(3), with_masks=True)
+    model = tmp_path / "model"
+    write_cfg_args(str(model / "cfg_args"), {"source_path": str(tmp_path / "photos"),
+                                             "resolution": 1, "white_background": False,
+                                             "holdout_every": 0})
+    write_ply(str(model / "point_cloud" / "iteration_1" / "point_cloud.ply"),
+              GaussianModel.from_points(torch.zeros(4, 3), sh_degree=0))
+    assert evaluate_cli.main(["-m", str(model), "--no-lpips", "--device", "cpu"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--holdout-every N" in err
