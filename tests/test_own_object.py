@@ -90,3 +90,15 @@ def test_the_documented_train_command_on_a_colmap_folder(tmp_path: Path, monkeyp
     train_line = next(line for line in doc_block("bash").splitlines() if line.startswith("python train.py"))
     run_line(train_line)
     assert (tmp_path / "output" / "my_object" / "particles.ply").is_file()
+
+
+def test_the_own_object_steps_name_every_dataset_layout_the_loader_reads() -> None:
+    """The README's own-object steps and this page name the Blender, COLMAP and DTU layouts (the
+    DTU one by its files), the hold-out for a test split and the placement of the object."""
+    readme = (ROOT / "README.md").read_text()
+    steps = readme[readme.index("## Your own object"):readme.index("## Materials")]
+    page = DOC.read_text()
+    for text in (steps, page):
+        for needle in ("Blender", "COLMAP", "DTU", "cameras_sphere.npz", "--holdout-every",
+                       "placement"):
+            assert needle in text, needle

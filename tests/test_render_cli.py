@@ -187,3 +187,15 @@ def test_an_unrenderable_resolution_is_one_line(cracked_block: Path, tmp_path: P
     err = run_failing(["--sim", str(cracked_block), "--views", str(cameras)], capsys)
     assert str(cameras) in err and f"{size[0]}x{size[1]}" in err
     assert not (cracked_block / "renders").exists()
+
+
+def test_help_lists_both_targets_and_model_path_renders_a_model(capsys, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as info:
+        cli.main(["--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    assert "--sim SIM" in text and "-m MODEL, --model_path MODEL" in text
+    missing = tmp_path / "missing"
+    for flag in ("-m", "--model_path"):   # both go to render.py -m, not to the --sim parser
+        assert cli.main([flag, str(missing)]) == 2
+        assert capsys.readouterr().err.strip() == f"error: {missing}: model folder not found"

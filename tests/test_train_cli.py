@@ -380,3 +380,29 @@ def test_presets_set_the_learning_rates_and_flags_override_them() -> None:
     assert (default.feature_lr, default.opacity_lr, default.scaling_lr) == (1e-2, 5e-2, 1e-2)
     assert (paper.feature_lr, paper.opacity_lr, paper.scaling_lr) == (2.5e-3, 2.5e-2, 5e-3)  # 3DGS
     assert given.feature_lr == 0.02 and given.opacity_lr == 2.5e-2
+
+
+def test_hold_out_and_up_flags_are_checked(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "out"
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, *TINY, "--holdout-every", "1"], out,
+                        "--holdout-every", "must be 0 (no test split) or >= 2")
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, *TINY, "--holdout-every", "8"], out,
+                        "own test split")
+    _expect_input_error(capsys, ["-s", FIXTURE, "-m", out, *TINY, "--up", "0", "0", "0"], out,
+                        "--up", "non-zero direction")
+
+
+def test_the_run_records_where_the_object_lies_and_leaves_no_lock(trained: Path) -> None:
+    """object.json: the box of the particles and the up of the fixture's level cameras (+z, the
+    Blender world's); the lock file is gone once the run ended."""
+    from fracture_gs.io.object_frame import read_object_frame
+
+    frame = read_object_frame(trained / "object.json")
+    particles = read_particles_ply(str(trained / "particles.ply"))
+    position = np.stack([particles[a] for a in "xyz"], axis=1)
+    assert np.allclose(frame.bbox_min, position.min(axis=0), atol=1e-6)
+    assert np.allclose(frame.bbox_max, position.max(axis=0), atol=1e-6)
+    assert np.allclose(frame.up, [0, 0, 1], atol=1e-6) and frame.up_source.startswith("level")
+    assert frame.height == pytest.approx(float(np.ptp(position[:, 2])), rel=1e-6)
+    assert not (trained / ".train.lock").exists()
+    assert "underside_cut" not in json.loads((trained / "timings.json").read_text())

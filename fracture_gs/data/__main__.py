@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from fracture_gs.data.dataset import Dataset, DatasetError
 from fracture_gs.data.loading import load_dataset
 from fracture_gs.data.parts import PartSpecError, load_part_spec
+from fracture_gs.data.up import camera_up, level_residual_deg
 
 PARTS_FILE = "parts.json"
 MESH_FILE = "gt_mesh.ply"
@@ -31,7 +32,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--downscale", type=int, default=1,
                         help="integer factor, or -1 to cap the width at 1600 pixels")
     parser.add_argument("--holdout-every", type=int, default=0,
-                        help="COLMAP / DTU: every k-th view is a test view")
+                        help="COLMAP / DTU: views 0, k, 2k, ... are the test split (train.py's "
+                        "--holdout-every)")
     parser.add_argument("--mesh-check", action="store_true",
                         help=f"compare the masks with the silhouettes of {MESH_FILE}")
     return parser.parse_args(argv)
@@ -46,6 +48,9 @@ def describe(dataset: Dataset) -> list[str]:
              f"cameras    rig radius {radius:.4g} (3DGS scene extent)"]
     if dataset.points is not None:
         lines.append(f"points     {dataset.points.shape[0]} sparse points")
+    up, method = camera_up(dataset.cameras)
+    lines.append(f"up         [{up[0]:.3f}, {up[1]:.3f}, {up[2]:.3f}] ({method}, "
+                 f"{level_residual_deg(dataset.cameras, up):.1f} deg rms tilt)")
     return lines
 
 

@@ -31,19 +31,41 @@ def _image_size(path: str) -> tuple[int, int]:
     return rgb.shape[1], rgb.shape[0]
 
 
-def _frames_of(transforms_path: str, source_path: str) -> list[tuple[str, np.ndarray, float]]:
-    """(image file, OpenCV world-to-camera, horizontal FOV) of every frame of one json file."""
+# Intrinsics a transforms file may give at its top level or per frame: the field of view
+# (NeRF-synthetic) or focal lengths and principal point in pixels (nerfstudio), and the image
+# size they refer to.
+INTRINSIC_KEYS = ("camera_angle_x", "fl_x", "fl_y", "cx", "cy", "w", "h")
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+FOCAL_KEYS = ("camera_angle_x", "fl_x")
+
+
+def _intrinsic_values(entry: dict, where: str, transforms_path: str) -> dict[str, float]:
+    """The intrinsics and distortion fields of one JSON object, checked to be numbers."""
+    values = {}
+    for key in INTRINSIC_KEYS + DISTORTION_KEYS:
+        if key not in entry:
+            continue
+        value = entry[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not math.isfinite(value):
+            raise DatasetError(f"{transforms_path}: {where}'{key}' is not a finite number")
+        values[key] = float(value)
+    return values
+
+
+def _frames_of(transforms_path: str, source_path: str) -> list[tuple[str, np.ndarray, dict]]:
+    """(image file, OpenCV world-to-camera, intrinsics fields) of every frame of one json file;
+    a frame's own fields override the file's."""
     content = _read_json(transforms_path)
     if "frames" not in content or not isinstance(content["frames"], list):
         raise DatasetError(f"{transforms_path}: missing key 'frames' (a list)")
-    if "camera_angle_x" not in content:
-        raise DatasetError(f"{transforms_path}: missing key 'camera_angle_x'")
-    try:
-        fov_x = float(content["camera_angle_x"])
-    except (TypeError, ValueError):
-        raise DatasetError(f"{transforms_path}: 'camera_angle_x' is not a number") from None
-    if not (0.0 < fov_x < math.pi):
-        raise DatasetError(f"{transforms_path}: camera_angle_x={fov_x} is not in (0, pi)")
+    shared = _intrinsic_values(content, "", transforms_path)
+    if not any(key in shared for key in FOCAL_KEYS):
+        unset = [n for n, frame in enumerate(content["frames"])
+                 if not (isinstance(frame, dict) and any(key in frame for key in FOCAL_KEYS))]
+        if unset:
+            raise DatasetError(f"{transforms_path}: missing key 'camera_angle_x' (or 'fl_x'; "
+                               f"frame {unset[0]} has neither)")
     views = []
     for number, frame in enumerate(content["frames"]):
         for key in ("file_path", "transform_matrix"):
@@ -65,9 +87,44 @@ def _frames_of(transforms_path: str, source_path: str) -> list[tuple[str, np.nda
         if image_path is None:
             raise DatasetError(f"{stem}: image of frame {number} in {transforms_path} not found "
                                f"(tried with and without .png/.jpg)")
+        intrinsics = {**shared, **_intrinsic_values(frame, f"frame {number} ", transforms_path)}
         views.append((image_path,
-                      opengl_camera_to_world_to_opencv_world_to_camera(camera_to_world), fov_x))
+                      opengl_camera_to_world_to_opencv_world_to_camera(camera_to_world),
+                      intrinsics))
     return views
+
+
+def pinhole_from_fields(fields: dict[str, float], width: int, height: int,
+                        where: str) -> tuple[float, float, float, float]:
+    """(fx, fy, cx, cy) in pixels of an image ``width`` x ``height`` from a frame's fields.
+
+    The focal length comes from ``fl_x`` (``fl_y`` defaults to it) or from ``camera_angle_x``
+    (0.5 W / tan(angle / 2) on both axes); the principal point from ``cx``, ``cy``, else the
+    image centre. nerfstudio's ``cx``, ``cy`` put the centre of the top-left pixel at (0.5, 0.5),
+    as :class:`Camera` does, so they are used unchanged. ``w`` and ``h``, when given, must be the
+    image's size; non-zero distortion is refused.
+    """
+    for key, size in (("w", width), ("h", height)):
+        if key in fields and int(round(fields[key])) != size:
+            raise DatasetError(f"{where}: '{key}' is {fields[key]:g} but the image is "
+                               f"{width}x{height} (intrinsics must be given for the image files)")
+    distorted = {k: v for k, v in fields.items() if k in DISTORTION_KEYS and abs(v) > 1e-9}
+    if distorted:
+        raise DatasetError(f"{where}: non-zero lens distortion {distorted}; undistort the "
+                           f"images first (e.g. COLMAP's image_undistorter)")
+    if "fl_x" in fields:
+        fx = fields["fl_x"]
+        fy = fields.get("fl_y", fx)
+        if not (fx > 0 and fy > 0):
+            raise DatasetError(f"{where}: focal lengths fl_x={fx:g}, fl_y={fy:g} must be > 0")
+    elif "camera_angle_x" in fields:
+        fov_x = fields["camera_angle_x"]
+        if not 0.0 < fov_x < math.pi:
+            raise DatasetError(f"{where}: camera_angle_x={fov_x} is not in (0, pi)")
+        fx = fy = 0.5 * width / math.tan(0.5 * fov_x)
+    else:
+        raise DatasetError(f"{where}: missing key 'camera_angle_x' (or 'fl_x')")
+    return fx, fy, fields.get("cx", width / 2.0), fields.get("cy", height / 2.0)
 
 
 def load_blender(source_path: str, split: str = "train", downscale: int = 1,
@@ -76,21 +133,23 @@ def load_blender(source_path: str, split: str = "train", downscale: int = 1,
 
     Frames come from ``transforms_<split>.json`` ("all" = train then test); their
     ``transform_matrix`` is camera-to-world in OpenGL axes and becomes an OpenCV
-    world-to-camera matrix. Focal length 0.5 W / tan(camera_angle_x / 2) on both axes,
-    principal point at the image centre. The alpha channel is the mask.
+    world-to-camera matrix. Intrinsics: :func:`pinhole_from_fields` (NeRF-synthetic's
+    ``camera_angle_x``, or nerfstudio's ``fl_x``, ``fl_y``, ``cx``, ``cy``, in the file or per
+    frame). The alpha channel is the mask.
     """
     if split not in SPLIT_FILES:
         raise ValueError(f"split must be one of {sorted(SPLIT_FILES)}, got {split!r}")
     views = []
     for name in SPLIT_FILES[split]:
-        views += _frames_of(os.path.join(source_path, name), source_path)
+        path = os.path.join(source_path, name)
+        views += [(image, pose, fields, path) for image, pose, fields in _frames_of(path, source_path)]
     if not views:
         raise DatasetError(f"{os.path.join(source_path, SPLIT_FILES[split][0])}: no frames")
     width, height = _image_size(views[0][0])
     cameras = []
-    for image_path, world_to_camera, fov_x in views:
-        focal = 0.5 * width / math.tan(0.5 * fov_x)
-        cameras.append(make_camera(world_to_camera, focal, focal, width / 2.0, height / 2.0,
-                                   width, height, image_path))
+    for image_path, world_to_camera, fields, transforms_path in views:
+        fx, fy, cx, cy = pinhole_from_fields(fields, width, height,
+                                             f"{transforms_path} ({os.path.basename(image_path)})")
+        cameras.append(make_camera(world_to_camera, fx, fy, cx, cy, width, height, image_path))
     return assemble_dataset(cameras, [v[0] for v in views], None, downscale=downscale,
                             white_background=white_background, format="blender")

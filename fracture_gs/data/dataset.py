@@ -19,8 +19,9 @@ class Dataset:
 
     Attributes:
         cameras: one :class:`Camera` per image (world-to-camera, fx fy cx cy, size).
-        images: (N, H, W, 3) float32 RGB in [0, 1]; RGBA inputs are composited on the
-            background colour the loader was asked for.
+        images: (N, H, W, 3) float32 RGB in [0, 1]; RGBA inputs, and photos with a mask
+            file, are composited on the background colour the loader was asked for (the alpha
+            channel or the mask as opacity).
         masks: (N, H, W) float32 in [0, 1] (alpha channel or mask images), or None.
         image_paths: the file each image was read from.
         format: ``"blender"``, ``"colmap"`` or ``"dtu"``.

@@ -86,3 +86,48 @@ def load_dtu(source_path: str, split: str = "train", downscale: int = 1,
     return assemble_dataset(cameras, image_paths, mask_paths, downscale=downscale,
                             white_background=white_background, format="dtu",
                             scale_mat=scale_mat_0)
+
+
+def resized_projection(projection: np.ndarray, factor: float) -> np.ndarray:
+    """The ``world_mat`` of the same camera for its image shrunk ``factor`` times on both axes.
+
+    With IDR's integer pixel centres a pixel coordinate u becomes (u + 0.5) / factor - 0.5."""
+    shift = 0.5 / factor - 0.5
+    resize = np.array([[1.0 / factor, 0.0, shift, 0.0], [0.0, 1.0 / factor, shift, 0.0],
+                       [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    return resize @ projection
+
+
+def write_dtu_subset(source_path: str, out_path: str, views: list[int], factor: int) -> None:
+    """Write views ``views`` of a DTU / NeuS folder to ``out_path`` in the same layout, their
+    images and masks shrunk ``factor`` times (area averaging; masks as 8-bit grey) and their
+    ``world_mat`` adjusted to match; view ``views[k]`` becomes view k."""
+    import cv2
+
+    from fracture_gs.data.images import read_mask, resize
+
+    cameras_path = os.path.join(source_path, CAMERAS_FILE)
+    arrays = read_npz(cameras_path)
+    images = list_image_files(os.path.join(source_path, "image"))
+    masks = list_image_files(os.path.join(source_path, "mask"))
+    if len(masks) != len(images):
+        raise DatasetError(f"{source_path}: expected one mask per image")
+    for folder in ("image", "mask"):
+        os.makedirs(os.path.join(out_path, folder), exist_ok=True)
+    subset = {}
+    for index, view in enumerate(views):
+        if not 0 <= view < len(images):
+            raise DatasetError(f"{source_path}: no view {view} (it has {len(images)})")
+        rgb, _ = read_image(images[view])
+        height, width = rgb.shape[:2]
+        size = (max(1, round(width / factor)), max(1, round(height / factor)))
+        pixels = np.clip(resize(rgb, *size) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        mask = np.clip(resize(read_mask(masks[view]), *size) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        cv2.imwrite(os.path.join(out_path, "image", f"{index:03d}.png"), pixels[:, :, ::-1],
+                    [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        cv2.imwrite(os.path.join(out_path, "mask", f"{index:03d}.png"), mask,
+                    [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        subset[f"world_mat_{index}"] = resized_projection(
+            _matrix(arrays, f"world_mat_{view}", cameras_path), width / size[0])
+        subset[f"scale_mat_{index}"] = _matrix(arrays, f"scale_mat_{view}", cameras_path)
+    np.savez_compressed(os.path.join(out_path, CAMERAS_FILE), **subset)

@@ -36,14 +36,29 @@ def load_dataset(source_path: str, split: str = "train", downscale: int = 1,
             put every view in "train" unless ``holdout_every`` = k > 0 moves views
             0, k, 2k, ... to "test".
         downscale: 3DGS's ``-r``: integer factor, or -1 to cap the width at 1600 pixels.
-        white_background: composite RGBA images on white instead of black.
+        white_background: composite RGBA images (and images with masks) on white instead
+            of black.
+        holdout_every: COLMAP and DTU only (a DatasetError for a Blender folder).
 
     Raises:
         DatasetError: one line naming the offending file and the problem.
     """
     data_format = detect_format(source_path)
     if data_format == "blender":
+        if holdout_every:
+            raise DatasetError(f"{source_path}: a Blender/NeRF folder has its own test split "
+                               f"(transforms_test.json); holding out every {holdout_every}th "
+                               f"view applies to COLMAP and DTU folders only")
         return load_blender(source_path, split, downscale, white_background)
     if data_format == "colmap":
         return load_colmap(source_path, split, downscale, white_background, holdout_every)
     return load_dtu(source_path, split, downscale, white_background, holdout_every)
+
+
+def has_test_split(source_path: str, holdout_every: int = 0) -> bool:
+    """Whether ``load_dataset(source_path, "test", holdout_every=holdout_every)`` has views:
+    a Blender folder's ``transforms_test.json``, or a hold-out (``holdout_every`` > 0) of a
+    COLMAP or DTU folder."""
+    if detect_format(source_path) == "blender":
+        return os.path.isfile(os.path.join(source_path, "transforms_test.json"))
+    return holdout_every > 0

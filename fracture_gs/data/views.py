@@ -25,7 +25,9 @@ def assemble_dataset(cameras: Sequence[Camera], image_paths: Sequence[str],
     Each camera must describe its image at the file's native resolution; all images must
     share one size. RGBA images are composited on the background; their alpha becomes the
     mask when ``mask_paths`` is None and ``alpha_as_mask`` is set (all images must then have
-    alpha, or none).
+    alpha, or none). Images with a mask file are composited on the background with the mask
+    as their alpha, so that the photometric fit sees the object alone and no background ends
+    up in its Gaussians.
     """
     if len(cameras) == 0:
         raise DatasetError(f"{format} dataset: no views to load")
@@ -59,15 +61,17 @@ def assemble_dataset(cameras: Sequence[Camera], image_paths: Sequence[str],
             elif has_alpha != first_has_alpha:
                 raise DatasetError(f"{path}: image {'has' if has_alpha else 'lacks'} an alpha "
                                    f"channel unlike {image_paths[0]}")
-        images[index] = torch.from_numpy(resize(composite(rgb, alpha, background), width, height))
+        pixels = composite(rgb, alpha, background)
         if mask_paths is not None:
             mask = read_mask(mask_paths[index])
             if (mask.shape[1], mask.shape[0]) != file_size:
                 raise DatasetError(f"{mask_paths[index]}: mask is {mask.shape[1]}x{mask.shape[0]} "
                                    f"but its image {path} is {file_size[0]}x{file_size[1]}")
+            pixels = composite(pixels, mask, background)
             masks[index] = torch.from_numpy(np.ascontiguousarray(resize(mask, width, height)))
         elif masks is not None:
             masks[index] = torch.from_numpy(np.ascontiguousarray(resize(alpha, width, height)))
+        images[index] = torch.from_numpy(resize(pixels, width, height))
         scaled_cameras.append(resized_camera(camera, width, height))
     return Dataset(cameras=scaled_cameras, images=images.clamp_(0.0, 1.0),
                    masks=None if masks is None else masks.clamp_(0.0, 1.0),
@@ -89,8 +93,8 @@ def split_indices(count: int, split: str, holdout_every: int, source: str) -> li
         raise ValueError(f"holdout_every must be >= 0, got {holdout_every}")
     if holdout_every == 0:
         if split == "test":
-            raise DatasetError(f"{source}: this format has no test split; pass holdout_every=k "
-                               f"to hold out every k-th view")
+            raise DatasetError(f"{source}: this format has no test split; train with "
+                               f"--holdout-every k to hold out every k-th view")
         return list(range(count))
     test = [i for i in range(count) if i % holdout_every == 0]
     if split == "test":

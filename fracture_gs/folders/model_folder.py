@@ -67,7 +67,8 @@ class OutputFolder:
 def run_lock(path: str) -> Iterator[None]:
     """Hold the lock of the model folder ``path`` (its ``.train.lock``) for one train.py run
     (:func:`fracture_gs.io.lock.folder_lock`: FolderBusy naming the folder when another run
-    holds it, since two runs writing one folder would mix their files)."""
+    holds it, since two runs writing one folder would mix their files). The lock file is removed
+    when the run ends; a run killed outright leaves it behind, harmlessly."""
     with folder_lock(path, LOCK_NAME, "train.py", "model folder"):
         yield
 

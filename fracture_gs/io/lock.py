@@ -12,6 +12,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator
+from typing import IO
 from pathlib import Path
 
 
@@ -23,7 +24,9 @@ class FolderBusy(ValueError):
 def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
                 what: str = "folder") -> Iterator[None]:
     """Hold the lock file ``lock_name`` in ``folder`` (made if missing) for the block;
-    ``tool`` and ``what`` name the command and the folder in the message.
+    ``tool`` and ``what`` name the command and the folder in the message. The file is deleted
+    when the block ends, while the lock is still held (a run that finds the file it locked deleted
+    under it locks the new one instead), and the folders this run made are removed if empty.
 
     Raises:
         FolderBusy: another process holds it.
@@ -48,13 +51,9 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
             handle.close()
             raise FolderBusy(f"{root}: another {tool} run is writing this {what} (it holds "
                              f"{lock_name}); wait for it or choose another output folder") from None
-        try:   # the file locked must still be the one at the path (a run may remove its own)
-            same = os.stat(path).st_ino == os.fstat(handle.fileno()).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
+        if _same_file(handle, path):   # the file locked must still be the one at the path
             break
-        handle.close()
+        handle.close()  # the holder before us removed the file: lock the one there now
     try:
         handle.seek(0)
         handle.truncate()
@@ -69,3 +68,11 @@ def folder_lock(folder: str | os.PathLike, lock_name: str, tool: str,
             except OSError:
                 break
         handle.close()
+
+
+def _same_file(handle: IO[str], path: Path) -> bool:
+    """Whether the open ``handle`` is still the file at ``path``."""
+    try:
+        return os.path.samestat(os.fstat(handle.fileno()), os.stat(path))
+    except OSError:
+        return False

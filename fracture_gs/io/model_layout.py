@@ -10,6 +10,7 @@ Layout::
     mesh.ply                                   marching-cubes mesh of the SDF
     particles.ply                              x y z volume is_surface part_id gaussian_index
     particles.json                             spacing and counts (for the renderer)
+    object.json                                box, centre and up direction (for placing it)
     train_log.csv                              per-iteration loss / PSNR of both stages
     timings.json                               wall and CPU seconds per stage
     chkpnt<N>.pth                              resumable state of the Gaussian stage
@@ -34,6 +35,7 @@ SDF_FILE = "sdf.npz"
 MESH_FILE = "mesh.ply"
 PARTICLES_FILE = "particles.ply"
 PARTICLES_JSON = "particles.json"
+OBJECT_FILE = "object.json"
 TRAIN_LOG_FILE = "train_log.csv"
 TIMINGS_FILE = "timings.json"
 POINT_CLOUD_DIR = "point_cloud"

@@ -51,7 +51,8 @@ class MetricChoice:
                                    fid=fid and self.fid)
 
 
-def checked_eval_options(views: str, resolution: tuple[int, int], window: int, background: str,
+def checked_eval_options(views: str, resolution: tuple[int, int], window: int,
+                         background: str | None,
                          device: torch.device, backend: str) -> EvalOptions:
     """:class:`EvalOptions` after checking them (EvaluationError naming the option)."""
     if min(resolution) < 8:

@@ -33,6 +33,7 @@ from fracture_gs.io.lock import folder_lock
 from fracture_gs.io.manifest import claim_folder, replace_written
 from fracture_gs.io.output_folder import prepare_output_folder
 from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.pipeline.background import training_background
 from fracture_gs.render.frame_gaussians import FrameGaussians, SceneGaussians
 from fracture_gs.render.render_info import RENDER_INFO_FILE, RenderInfo, write_render_info
 from fracture_gs.pipeline.views import resolve_views
@@ -57,7 +58,7 @@ class RenderOptions:
     fpgo: bool = True
     frames: str | None = None
     resolution: tuple[int, int] | None = None
-    background: str = "white"
+    background: str | None = None     # white | black; None: the objects' training background
     export_ply: bool = False
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
     out: Path | None = None
@@ -148,7 +149,8 @@ def render_simulation(options: RenderOptions, log: TextIO | None = None,
     scene = SceneGaussians.from_simulation(sim, options.device, options.settings)
     device = options.device
     views = [View(view.name, view.camera.to(device)) for view in views]
-    background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
+    colour = options.background or training_background(sim.scene)
+    background = torch.full((3,), 1.0 if colour == "white" else 0.0, device=device)
     with folder_lock(out_dir, LOCK_FILE, "render.py", "render folder"):
         return _render_locked(options, sim, frames, views, preview, out_dir, scene, background,
                               log, progress, started)

@@ -2,9 +2,11 @@
 
 Writes ``<model>/{train,test}/ours_<iteration>/{renders,gt}/<index:05d>.png`` for the views of
 the dataset recorded in ``<model>/cfg_args`` (background and image scale as trained), records
-them in that folder's manifest, and returns the mean PSNR / SSIM of each split. One render at a
-time writes a split's folder (its lock ``.render.lock``), only where no file is in the way that
-the tools did not write there, replacing the files of the earlier render of that folder.
+them in that folder's manifest, and returns the mean PSNR / SSIM of each split. The test split
+is the dataset's own (Blender) or the views ``train.py --holdout-every`` held out (COLMAP, DTU).
+One render at a time writes a split's folder (its lock ``.render.lock``), only where no file is
+in the way that the tools did not write there, replacing the files of the earlier render of that
+folder.
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import torch
 from tqdm import tqdm
 
 from fracture_gs.data import Dataset, load_dataset
+from fracture_gs.data.loading import has_test_split
 from fracture_gs.folders.model_folder import read_cfg_args
 from fracture_gs.gaussians import GaussianModel, read_ply
 from fracture_gs.io.atomic import atomic_path
@@ -107,13 +110,14 @@ def render_model(model_path: str, *, source_path: str | None = None, iteration: 
         raise RenderInputError(f"{cfg_path}: no source_path; pass -s <dataset>")
     resolution = int(options.get("resolution", 1))
     white = bool(options.get("white_background", False))
+    holdout_every = int(options.get("holdout_every", 0))
     results = {}
     for split, skip in (("train", skip_train), ("test", skip_test)):
         if skip:
             continue
-        if split == "test" and not os.path.isfile(os.path.join(source, "transforms_test.json")):
+        if split == "test" and not has_test_split(source, holdout_every):
             continue
-        dataset = load_dataset(source, split, resolution, white)
+        dataset = load_dataset(source, split, resolution, white, holdout_every)
         results[split] = render_split(model_path, split, iteration, dataset, gaussians,
                                       torch_device, quiet)
         print(f"[render] {split}: {results[split]['views']} views, PSNR "

@@ -51,8 +51,9 @@ def resolve_views(spec: str, sim: Simulation, frames: Sequence[int],
                         "cameras.json)")
 
 
-def dataset_source(model_dir: Path) -> Path:
-    """The dataset folder a model was trained on (``source_path`` in its ``cfg_args``)."""
+def dataset_source(model_dir: Path) -> tuple[Path, int]:
+    """The dataset folder a model was trained on (``source_path`` in its ``cfg_args``) and the
+    ``--holdout-every`` it was trained with (0 when not recorded)."""
     cfg = model_dir / CFG_ARGS_FILE
     if not cfg.is_file():
         raise ViewSpecError(f"{cfg}: file not found (train/test views need the model's "
@@ -68,7 +69,7 @@ def dataset_source(model_dir: Path) -> Path:
         source = (model_dir / source) if (model_dir / source).exists() else Path.cwd() / source
     if not source.exists():
         raise ViewSpecError(f"{cfg}: the dataset {source} does not exist")
-    return source
+    return source, int(options.get("holdout_every", 0) or 0)
 
 
 def dataset_views(model_dir: Path, split: str, rotation: np.ndarray, scale: float,
@@ -76,9 +77,9 @@ def dataset_views(model_dir: Path, split: str, rotation: np.ndarray, scale: floa
     """The ``split`` cameras of a model's dataset, moved into the scene by the object transform."""
     if size is not None:
         check_image_size(*size, f"--views {split}")
-    source = dataset_source(model_dir)
+    source, holdout_every = dataset_source(model_dir)
     try:
-        data = load_dataset(str(source), split=split)
+        data = load_dataset(str(source), split=split, holdout_every=holdout_every)
     except DatasetError as exc:
         raise ViewSpecError(f"--views {split}: {exc}") from None
     views = []

@@ -21,6 +21,8 @@ from tqdm import tqdm
 
 from fracture_gs.bounds import SEED_MAX
 from fracture_gs.data import Dataset, DatasetError, load_dataset
+from fracture_gs.data.loading import has_test_split
+from fracture_gs.data.up import camera_up, level_residual_deg
 from fracture_gs.data.parts import PartSpec, assign_part_ids, load_part_spec, single_part_spec
 from fracture_gs.folders import model_folder
 from fracture_gs.gaussians import GaussianModel, PlyFormatError, write_ply
@@ -28,6 +30,7 @@ from fracture_gs.gaussians.model import PARAMETER_NAMES
 from fracture_gs.io import model_layout
 from fracture_gs.io.atomic import atomic_path
 from fracture_gs.io.device import DeviceError, resolve_device
+from fracture_gs.io.object_frame import measure_object, write_object_frame
 from fracture_gs.io.particles_ply import write_particles_ply
 from fracture_gs.recon.carving import carve_hull
 from fracture_gs.recon.errors import ReconstructionError
@@ -40,6 +43,7 @@ from fracture_gs.recon.imported import (bind_to_nearest, iteration_of, opacity_f
 from fracture_gs.recon.meshing import extract_mesh
 from fracture_gs.recon.particles import ParticleSet, sample_particles
 from fracture_gs.recon.sdf_refine import RefineSettings, refine_sdf
+from fracture_gs.recon.support import cut_sdf, support_cut
 from fracture_gs.recon.timing import StageTimer
 from fracture_gs.render.camera import cameras_json_entry
 
@@ -80,6 +84,9 @@ class TrainConfig:
     particle_res: int | None = 48
     n_interior: int | None = None
     shell: float = 0.0               # wall thickness of a hollow body / longest side (0: solid)
+    holdout_every: int = 0           # COLMAP / DTU: views 0, k, 2k, ... are the test split
+    up: list[float] | None = None    # the object's up in dataset coordinates (None: from the cameras)
+    keep_underside: bool = False     # keep what no camera sees below the object (no support cut)
     parts: str | None = None
     sh_degree: int = 3
     device: str = "cpu"
@@ -104,7 +111,8 @@ class TrainConfig:
         options = {"sh_degree": self.sh_degree, "source_path": os.path.abspath(self.source_path),
                    "model_path": self.model_path, "images": "images",
                    "resolution": self.resolution, "white_background": self.white_background,
-                   "data_device": self.device, "eval": True}
+                   "data_device": self.device, "eval": self.holdout_every > 0 or
+                   _has_test_split(self.source_path, 0)}
         options.update({f.name: getattr(self, f.name) for f in fields(self)
                         if f.name not in options and f.name not in ("source_path", "model_path",
                                                                      "quiet")})
@@ -124,17 +132,21 @@ class Inputs:
     geometry: tuple[VoxelGrid, torch.Tensor, torch.Tensor] | None = None
 
 
-def _has_test_split(source_path: str) -> bool:
-    return os.path.isfile(os.path.join(source_path, "transforms_test.json"))
+def _has_test_split(source_path: str, holdout_every: int) -> bool:
+    try:
+        return has_test_split(source_path, holdout_every)
+    except DatasetError:
+        return False
 
 
 def read_inputs(config: TrainConfig) -> Inputs:
     """Load and check the dataset, part spec, imported PLY and checkpoint (one-line errors)."""
-    train = load_dataset(config.source_path, "train", config.resolution, config.white_background)
+    train = load_dataset(config.source_path, "train", config.resolution, config.white_background,
+                         config.holdout_every)
     test = None
-    if _has_test_split(config.source_path):
+    if _has_test_split(config.source_path, config.holdout_every):
         test = load_dataset(config.source_path, "test", config.resolution,
-                            config.white_background)
+                            config.white_background, config.holdout_every)
     imported = None
     if config.from_ply is not None:
         imported = read_imported(config.from_ply)
@@ -192,6 +204,8 @@ def check_config(config: TrainConfig) -> None:
               ("--n-interior", config.n_interior is None or config.n_interior >= 1,
                "must be >= 1"),
               ("--shell", 0.0 <= config.shell < 0.5, "must be in [0, 0.5)"),
+              ("--holdout-every", config.holdout_every == 0 or config.holdout_every >= 2,
+               "must be 0 (no test split) or >= 2"),
               ("--sh-degree", 0 <= config.sh_degree <= 3, "must be 0..3"),
               ("--max-offset", config.max_offset >= 0, "must be >= 0"),
               ("--min-component", 0 <= config.min_component <= 1, "must be in [0, 1]"),
@@ -203,6 +217,9 @@ def check_config(config: TrainConfig) -> None:
     for flag, ok, problem in checks:
         if not ok:
             raise ReconstructionError(f"{flag}: {getattr(config, _attribute(flag))} {problem}")
+    if config.up is not None and not (len(config.up) == 3 and np.all(np.isfinite(config.up))
+                                      and np.linalg.norm(config.up) > 0):
+        raise ReconstructionError(f"--up: {config.up} is not a non-zero direction X Y Z")
     if config.bbox is not None:
         lower, upper = np.asarray(config.bbox[:3]), np.asarray(config.bbox[3:])
         if len(config.bbox) != 6 or not np.all(upper > lower):
@@ -372,8 +389,12 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
                             [cameras_json_entry(index, name, camera)
                              for index, (name, camera) in enumerate(views)])
     summary: dict[str, Any] = dict(checkpoint["summary"]) if checkpoint else {}
+    up, up_source = _object_up(config, inputs)
     if checkpoint is None:
         grid, sdf, hull_sdf = build_geometry(config, inputs, timer, device, log_rows, summary)
+        if inputs.train.masks is not None and not config.keep_underside:
+            with timer.stage("underside"):
+                sdf = _cut_unseen_underside(config, inputs, grid, sdf, up, summary, out)
         sdf_path = folder.file(model_layout.SDF_FILE)
         model_folder.write_sdf(sdf_path, sdf, hull_sdf, grid.origin, grid.voxel)
         with timer.stage("marching_cubes"):
@@ -414,6 +435,8 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     write_ply(folder.file(*model_layout.point_cloud_path(config.model_path, iteration)
                           .split(os.sep)[-3:]), gaussians)
     _write_particles(folder, particles, part_id, gaussian_index, config)
+    where = measure_object(particles.position, up, up_source)
+    write_object_frame(folder.file(model_layout.OBJECT_FILE), where)
     model_folder.remove_earlier_runs(config.model_path, {iteration, *config.save_iterations})
     with timer.stage("evaluation"):
         summary["train"] = evaluate_views(gaussians, inputs.train, device)
@@ -431,7 +454,34 @@ def _train_into(config: TrainConfig, inputs: Inputs, folder: model_folder.Output
     print(f"[train] {config.model_path}: train PSNR {summary['train']['psnr']:.2f} dB{test_text}; "
           f"{particles.num_surface} surface + {particles.num_interior} interior particles; "
           f"{timer.total()['wall_s']:.0f} s", file=out)
+    print(f"[train] object in model coordinates: {where.summary()}", file=out)
     return summary
+
+
+def _object_up(config: TrainConfig, inputs: Inputs) -> tuple[np.ndarray, str]:
+    """The object's up direction and where it came from: ``--up``, else the training cameras
+    (:mod:`fracture_gs.data.up`)."""
+    if config.up is not None:
+        up = np.asarray(config.up, dtype=np.float64)
+        return up / np.linalg.norm(up), "--up"
+    up, method = camera_up(inputs.train.cameras)
+    return up, f"{method}, {level_residual_deg(inputs.train.cameras, up):.1f} deg rms tilt"
+
+
+def _cut_unseen_underside(config: TrainConfig, inputs: Inputs, grid: VoxelGrid,
+                          sdf: torch.Tensor, up: np.ndarray, summary: dict[str, Any],
+                          out: TextIO) -> torch.Tensor:
+    """``sdf`` cut below the lowest part of the object the training cameras see
+    (:mod:`fracture_gs.recon.support`); records and prints the cut when there is one."""
+    mesh = extract_mesh(sdf, grid, config.min_component, source="the refined SDF")
+    cut = support_cut(mesh, inputs.train.cameras, up, grid.voxel)
+    if cut is None:
+        return sdf
+    summary["underside_cut"] = asdict(cut)
+    print(f"[train] no camera sees below {cut.height:.4g} along up: the underside hanging "
+          f"{cut.depth:.3g} below it (the silhouettes' keel) is cut flat there "
+          f"(--keep-underside keeps it)", file=out)
+    return cut_sdf(sdf, grid, cut)
 
 
 def _fit(config: TrainConfig, inputs: Inputs, folder: model_folder.OutputFolder,

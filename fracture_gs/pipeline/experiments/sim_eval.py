@@ -26,6 +26,7 @@ from fracture_gs.folders.sim_reader import Simulation, SimulationError
 from fracture_gs.fracture.fpgo import FPGOSettings
 from fracture_gs.metrics.onset import DEFAULT_WINDOW, FractureWindow, fracture_window_from_simulation
 from fracture_gs.metrics.protocol import MetricNetworks, SelfReferencedMetrics, self_referenced_metrics
+from fracture_gs.pipeline.background import training_background
 from fracture_gs.io.sim_layout import PARTICLES_FILE, SCENE_FILE
 from fracture_gs.render.frame_gaussians import SceneGaussians
 from fracture_gs.render.render_info import (RENDER_INFO_FILE, RenderInfo, RenderInfoError,
@@ -64,7 +65,7 @@ class EvalOptions:
     views: str = "orbit:8"
     resolution: tuple[int, int] = DEFAULT_RESOLUTION
     window: int = DEFAULT_WINDOW
-    background: str = "white"
+    background: str | None = None     # white | black; None: the objects' training background
     device: torch.device = field(default_factory=lambda: torch.device("cpu"))
     backend: str = "auto"
     batch_size: int = 8
@@ -189,7 +190,8 @@ def render_frames(sim: Simulation, views: list[View], frames: list[int], fpgo: b
     device = options.device
     scene = SceneGaussians.from_simulation(sim, device, options.settings)
     cameras = [view.camera.to(device) for view in views]
-    background = torch.full((3,), 1.0 if options.background == "white" else 0.0, device=device)
+    colour = options.background or training_background(sim.scene)
+    background = torch.full((3,), 1.0 if colour == "white" else 0.0, device=device)
     images = []
     with torch.no_grad():
         for index in tqdm(frames, desc=f"render {sim.scene.name}", unit="frame",

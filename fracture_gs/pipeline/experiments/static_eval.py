@@ -70,7 +70,9 @@ def _render_folder(model: Path, split: str, device: torch.device) -> tuple[Path,
         except (RenderInputError, DatasetError, PlyFormatError) as exc:
             raise EvaluationError(str(exc)) from None
     if not (folder / RENDERED_DIR).is_dir():
-        raise EvaluationError(f"{folder}: no renders/ (the dataset has no {split} split)")
+        raise EvaluationError(f"{folder}: no renders/ (the dataset has no {split} split; a "
+                              f"COLMAP or DTU folder has one when train.py ran with "
+                              f"--holdout-every N)")
     return folder, iteration
 
 
