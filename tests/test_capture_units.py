@@ -292,9 +292,9 @@ def test_the_model_folder_lock_file_goes_when_the_run_ends(tmp_path: Path) -> No
             with run_lock(str(tmp_path)):
                 pass
     assert not (tmp_path / ".train.lock").exists()
-    with folder_lock(tmp_path, "keep.lock", "tool"):   # other folders' locks stay
+    with folder_lock(tmp_path, "other.lock", "tool"):   # every command's lock goes with its run
         pass
-    assert (tmp_path / "keep.lock").is_file()
+    assert not (tmp_path / "other.lock").exists()
 
 
 def test_a_run_waiting_on_a_removed_lock_file_locks_the_new_one(tmp_path: Path) -> None:
