@@ -8,7 +8,8 @@ from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere
 from fracture_gs.materials import ElasticMaterial, NACCMaterial
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.solver import CollisionMPM
-from fracture_gs.mpm.types import BLOCK, BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet
+from fracture_gs.mpm.types import (BLOCK, BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet,
+                                   grid_resolution)
 
 DOMAIN = Domain((0, 0, 0), (1, 1, 1), 24)
 MATERIALS = [NACCMaterial(E=5e4, nu=0.3, density=300.0, alpha0=-0.01, beta=0.5, xi=1.0, M=2.36),
@@ -29,7 +30,7 @@ def test_order_groups_objects_then_blocks_then_cells() -> None:
     assert torch.equal(torch.sort(order).values, torch.arange(len(particles)))
     ordered = shuffled.take(order)
     base = torch.floor(ordered.x.double() / DOMAIN.dx - 0.5).long()
-    blocks = torch.tensor(DOMAIN.resolution) // BLOCK
+    blocks = torch.tensor(grid_resolution(DOMAIN)) // BLOCK
     block = base // BLOCK
     block_index = (block[:, 0] * blocks[1] + block[:, 1]) * blocks[2] + block[:, 2]
     cell = base % BLOCK

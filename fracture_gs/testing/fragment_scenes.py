@@ -18,7 +18,7 @@ import torch
 
 from fracture_gs.config.scene import PrimitiveConfig
 
-from fracture_gs.materials import MaterialModel, material_from_yaml
+from fracture_gs.materials import MaterialModel, model_by_name
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.scene import sample_primitive
 from fracture_gs.mpm.solver import CollisionMPM
@@ -38,9 +38,9 @@ def jittered_box(centre: Sequence[float], size: float, dx: float, seed: int) -> 
 
 
 def soil(E: float, density: float, alpha0: float, beta: float) -> MaterialModel:
-    """The NACC material of these scenes (ν 0.3, ξ 1, M 2.36), as a scene's material mapping names it."""
-    return material_from_yaml({"model": "nacc", "E": E, "nu": 0.3, "density": density, "alpha0": alpha0,
-                               "beta": beta, "xi": 1.0, "M": 2.36}, "soil")
+    """The NACC material of these scenes (ν 0.3, ξ 1, M 2.36); α0 may lie beyond a scene file's range
+    (the precracked bar's strong halves)."""
+    return model_by_name()["nacc"](E=E, nu=0.3, density=density, alpha0=alpha0, beta=beta, xi=1.0, M=2.36)
 
 
 def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, beta: float = 0.5,
@@ -58,7 +58,7 @@ def block_drop(speed: float, *, E: float, density: float, alpha0: float | None, 
     block = (lattice_box(centre, (size, size, size), spacing) if jitter_seed is None else
              jittered_box(centre, size, domain.dx, jitter_seed))
     material = (soil(E, density, alpha0, beta) if alpha0 is not None else
-                material_from_yaml({"model": "elastic", "E": E, "nu": 0.3, "density": density}, "block"))
+                model_by_name()["elastic"](E=E, nu=0.3, density=density))
     particles = particle_set([LatticeBody(block, (0.0, 0.0, -speed), 0, spacing)], [material.density])
     particles = particles.take(spatial_order(particles.x, particles.obj_id, domain))
     return CollisionMPM(particles, [material], domain,
