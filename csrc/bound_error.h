@@ -29,4 +29,19 @@ template <class... Parts>
 // Lists and counts the kernels index with int32.
 constexpr int64_t kMaxInt32Count = std::numeric_limits<int32_t>::max();
 
+// Position of the first of the n entries of v outside [0, limit), or -1 (one min / max pass,
+// then a search only where it failed).
+inline int64_t first_outside(const int32_t* v, int64_t n, int64_t limit) {
+  if (n == 0) return -1;
+  int32_t lo = v[0], hi = v[0];
+  for (int64_t i = 1; i < n; ++i) {
+    lo = v[i] < lo ? v[i] : lo;
+    hi = v[i] > hi ? v[i] : hi;
+  }
+  if (lo >= 0 && hi < limit) return -1;
+  for (int64_t i = 0; i < n; ++i)
+    if (v[i] < 0 || v[i] >= limit) return i;
+  return -1;
+}
+
 }  // namespace fgs

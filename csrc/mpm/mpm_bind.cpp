@@ -58,18 +58,11 @@ int list_size(const Tensor& t, const char* name) {
 // Throws where an int32 list (on the CPU) holds an entry outside [0, limit): the kernels index
 // grid blocks or particles with it.
 void check_index_list(const Tensor& list, int64_t limit, const char* name, const char* what) {
-  if (!list.device().is_cpu() || list.numel() == 0) return;
-  const int32_t* v = list.data_ptr<int32_t>();
-  const int64_t n = list.numel();
-  int32_t lo = v[0], hi = v[0];
-  for (int64_t i = 1; i < n; ++i) {
-    lo = v[i] < lo ? v[i] : lo;
-    hi = v[i] > hi ? v[i] : hi;
-  }
-  if (lo >= 0 && hi < limit) return;
-  for (int64_t i = 0; i < n; ++i)
-    if (v[i] < 0 || v[i] >= limit)
-      throw_bound_error(name, "[", i, "] = ", v[i], " is not a valid ", what, " (0 .. ", limit - 1, ")");
+  if (!list.device().is_cpu()) return;
+  const int64_t i = first_outside(list.data_ptr<int32_t>(), list.numel(), limit);
+  if (i >= 0)
+    throw_bound_error(name, "[", i, "] = ", list.data_ptr<int32_t>()[i], " is not a valid ", what, " (0 .. ",
+                      limit - 1, ")");
 }
 
 // The bins of n particles as bin_particles returns them (order, cell_start, cell_key,

@@ -89,9 +89,9 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
       bool ok = grid_id[p] >= 0 && grid_id[p] < geo.n_grids;
       uint8_t r = 0;
       for (int d = 0; d < 3; ++d) {
-        float X = (x[3 * p + d] - geo.lower[d]) * geo.inv_dx;
+        const float X = grid_coordinate(x[3 * p + d], geo.lower[d], geo.inv_dx);  // as P2G's stencil
         ok = ok && X >= 0.5f && X < (float)limit[d] + 0.5f;  // also false for NaN
-        base[d] = ok ? (int)floorf(X - 0.5f) : 0;
+        base[d] = ok ? axis_base(X) : 0;
         if ((base[d] & (kBlock - 1)) >= kBlock - 2) r |= (uint8_t)(1 << d);
       }
       if (!ok) {
