@@ -100,11 +100,15 @@ Tensor check_bins(const std::vector<Tensor>& bins, int64_t n, const MPMGeometry&
   return color_start;
 }
 
-// Throws for what a kernel reported out of bounds (BoundReport, or the CUDA kernels' bound slots).
-void throw_reported(long long misplaced, long long bad_index, const char* kernel) {
-  if (misplaced >= 0)
-    throw_bound_error(kernel, ": particle ", misplaced, " does not lie in the grid block it was sorted into "
-                      "(the bins do not match the positions); its stencil would leave the kernel's window");
+constexpr const char* kMisplaced =
+    "does not lie in the grid block it was sorted into (the bins do not match the positions); its stencil would "
+    "leave the kernel's window";
+
+// Throws for what a kernel reported out of bounds (BoundReport, or the CUDA kernels' bound slots);
+// misplaced_what: what is wrong with the misplaced particle.
+void throw_reported(long long misplaced, long long bad_index, const char* kernel,
+                    const char* misplaced_what = kMisplaced) {
+  if (misplaced >= 0) throw_bound_error(kernel, ": particle ", misplaced, " ", misplaced_what);
   if (bad_index >= 0)
     throw_bound_error(kernel, ": entry ", bad_index, " of an index list (or a reference key) names a particle or "
                       "grid block that does not exist");
@@ -116,11 +120,11 @@ Tensor bound_slots(const Tensor& like) {
   return torch::full({kBoundSlots}, std::numeric_limits<int64_t>::max(), like.options().dtype(torch::kInt64));
 }
 
-void throw_slots(const Tensor& slots, const char* kernel) {
+void throw_slots(const Tensor& slots, const char* kernel, const char* misplaced_what = kMisplaced) {
   const Tensor host = slots.cpu();
   const int64_t* h = host.data_ptr<int64_t>();
   const int64_t none = std::numeric_limits<int64_t>::max();
-  throw_reported(h[0] == none ? -1 : h[0], h[1] == none ? -1 : h[1], kernel);
+  throw_reported(h[0] == none ? -1 : h[0], h[1] == none ? -1 : h[1], kernel, misplaced_what);
 }
 #endif
 
@@ -243,7 +247,7 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
                           split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), normals, (float)crack_scale,
                           damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>(),
                           reinterpret_cast<long long*>(slots.data_ptr<int64_t>()), current_cuda_stream());
-  throw_slots(slots, "fragment_reference");
+  throw_slots(slots, "fragment_reference", "has a stencil outside the grid (or a grid_id out of range)");
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
