@@ -2,7 +2,8 @@
 
 The C++ CPU kernels (OpenMP) are always built. CUDA kernels are added when the CUDA
 toolkit (nvcc) and a CUDA build of torch are both present; set ``FRACTURE_GS_NO_CUDA=1``
-to skip them. Install with ``pip install --no-build-isolation -e .`` so the build uses the
+to skip them. ``FRACTURE_GS_SANITIZE=address`` builds the C++ kernels with AddressSanitizer
+(docs/design_mpm.md, Memory safety). Install with ``pip install --no-build-isolation -e .`` so the build uses the
 torch that is already installed (build isolation would fetch a different one).
 """
 from __future__ import annotations
@@ -40,11 +41,28 @@ def _want_cuda() -> bool:
     return torch.version.cuda is not None and cpp_extension.CUDA_HOME is not None
 
 
+def _sanitizer() -> str | None:
+    """``FRACTURE_GS_SANITIZE=address``: the C++ kernels built with AddressSanitizer (a check
+    build; python then needs ``LD_PRELOAD=$(gcc -print-file-name=libasan.so)``)."""
+    name = os.environ.get("FRACTURE_GS_SANITIZE", "")
+    if name in ("", "0"):
+        return None
+    if name != "address":
+        raise SystemExit(f"setup.py: FRACTURE_GS_SANITIZE={name!r}: only 'address' is supported")
+    return name
+
+
 def _cxx_flags() -> list[str]:
     flags = ["-O3", "-fopenmp", "-std=c++20", "-fno-math-errno", "-fno-trapping-math"]
     if os.environ.get("FRACTURE_GS_PORTABLE", "0") in ("", "0") and sys.platform.startswith("linux"):
         flags.append("-march=native")
+    if _sanitizer():
+        flags += [f"-fsanitize={_sanitizer()}", "-fno-omit-frame-pointer", "-g"]
     return flags
+
+
+def _link_flags() -> list[str]:
+    return ["-fopenmp"] + ([f"-fsanitize={_sanitizer()}"] if _sanitizer() else [])
 
 
 def _check_object_names(sources: list[str]) -> None:
@@ -69,10 +87,10 @@ def _extensions() -> list:
         return [cpp_extension.CUDAExtension(
             name="fracture_gs._C", sources=cpp_sources + cu_sources, include_dirs=include_dirs,
             define_macros=[("FGS_WITH_CUDA", "1")],
-            extra_compile_args={"cxx": cxx, "nvcc": nvcc}, extra_link_args=["-fopenmp"])]
+            extra_compile_args={"cxx": cxx, "nvcc": nvcc}, extra_link_args=_link_flags())]
     return [cpp_extension.CppExtension(
         name="fracture_gs._C", sources=cpp_sources, include_dirs=include_dirs,
-        extra_compile_args={"cxx": cxx}, extra_link_args=["-fopenmp"])]
+        extra_compile_args={"cxx": cxx}, extra_link_args=_link_flags())]
 
 
 setup(

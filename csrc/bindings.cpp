@@ -2,6 +2,7 @@
 // (csrc/<subsystem>/*_bind.cpp) so that the kernels themselves stay free of torch headers.
 #include <torch/extension.h>
 
+#include "bound_error.h"
 #include "mpm/material_bind.h"
 #include "mpm/mpm_bind.h"
 #include "raster/raster_bind.h"
@@ -38,4 +39,14 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   fgs::register_raster(m);
   fgs::register_spatial(m);
   fgs::register_fracture(m);
+  // A kernel's violated bound (csrc/bound_error.h) becomes fracture_gs._backend.KernelBoundError,
+  // so that callers can tell it from a bug.
+  pybind11::register_exception_translator([](std::exception_ptr error) {
+    try {
+      if (error) std::rethrow_exception(error);
+    } catch (const fgs::KernelBoundError& bound) {
+      const pybind11::object type = pybind11::module_::import("fracture_gs._backend").attr("KernelBoundError");
+      PyErr_SetString(type.ptr(), bound.what());
+    }
+  });
 }

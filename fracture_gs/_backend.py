@@ -16,6 +16,13 @@ import torch
 BACKENDS = ("auto", "cpp", "reference")
 
 
+class KernelBoundError(RuntimeError):
+    """A compiled kernel refused an input that breaks a bound it is built for (an index outside
+    the buffer it indexes, a particle outside the grid block it was sorted into, more entries
+    than an int32 list holds). The message names the bound; the kernel wrote nothing out of
+    bounds. Raised by ``fracture_gs._C`` (csrc/bound_error.h)."""
+
+
 @functools.lru_cache(maxsize=None)
 def compiled_module() -> ModuleType | None:
     """Return ``fracture_gs._C`` or None (with a single warning) if it cannot be imported."""

@@ -234,3 +234,32 @@ def test_overlap_of_model_objects_is_measured_by_their_particles(tmp_path: Path)
            "transform": {"translate": [0.5 - 0.07 - 0.05 - 0.001, 0.5, 0.5]},
            "materials": [{"part": 0, **NACC}]}
     assert warnings([model("a", [0.5, 0.5, 0.5]), box]) == []
+
+
+def test_particles_per_cell_and_the_density_warning() -> None:
+    """The typical particle's cell count: 8 for a 2x2x2 lattice per cell, Σc²/Σc for uneven
+    cells; a primitive sampled far denser than the solver is built for is warned about with the
+    finer grid that brings it to the limit, an ordinary one is not."""
+    from fracture_gs.mpm.density import MAX_PARTICLES_PER_CELL, grid_for_density, particles_per_cell
+
+    dx = 0.1
+    axis = (np.arange(8) + 0.5) * dx / 2  # 2 particles per cell along each of 4 cells
+    lattice = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    assert particles_per_cell(lattice, (0, 0, 0), dx) == pytest.approx(8.0)
+    uneven = np.concatenate([np.full((30, 3), 0.05), np.full((10, 3), 0.15)])  # cells of 30 and 10
+    assert particles_per_cell(uneven, (0, 0, 0), dx) == pytest.approx((30 ** 2 + 10 ** 2) / 40)
+    assert grid_for_density(48, 64 * 8, 64) == 96  # 8 times the count per cell: half the cell edge
+
+    def built(per_cell: int):
+        return build_scene(parse_scene(scene_with([
+            {"name": "dense", "primitive": {"shape": "box", "size": [0.25, 0.25, 0.25],
+                                            "particles_per_cell": per_cell},
+             "transform": {"translate": [0.5, 0.5, 0.5]}, "materials": [NACC]}])))
+
+    assert built(8).warnings == ()
+    warning, = built(216).warnings
+    measured = float(warning.split("puts ")[1].split(" particles")[0])
+    assert 150 < measured <= 216 and measured > MAX_PARTICLES_PER_CELL
+    assert warning.startswith("object 'dense' puts ") and "16-cell grid" in warning
+    assert f"domain.grid >= {grid_for_density(16, measured, MAX_PARTICLES_PER_CELL)}" in warning
+    assert "particles_per_cell" in warning

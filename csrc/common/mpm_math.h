@@ -53,7 +53,33 @@ struct AxisWeights {
   float dw[3];
 };
 
-// First stencil node along one axis of a particle at grid coordinate X (position / dx).
+// Grid coordinate X = (x - lower) * inv_dx of a position along one axis, rounded to float
+// before anything else uses it. Every kernel, and the torch twin, must find the same stencil base
+// floor(X - 0.5) for a particle: the binning sorts particles by it and P2G writes into the window
+// of the block it names. Left to itself the compiler fuses the product with the - 0.5 (or with
+// f = X - base) into one FMA in some places and not in others (-ffp-contract=fast, nvcc's
+// default fmad), and a particle within a rounding of a block boundary then gets two different
+// bases; so the product is kept out of reach of contraction (__fmul_rn on the device, an empty
+// asm on the host, which costs no instruction).
+HOST_DEVICE inline float grid_coordinate(float x, float lower, float inv_dx) {
+#if defined(__CUDA_ARCH__)
+  return __fmul_rn(x - lower, inv_dx);
+#elif defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
+  float X = (x - lower) * inv_dx;
+  asm("" : "+x"(X));
+  return X;
+#elif defined(__GNUC__) && defined(__aarch64__)
+  float X = (x - lower) * inv_dx;
+  asm("" : "+w"(X));
+  return X;
+#else
+  volatile float X = (x - lower) * inv_dx;
+  return X;
+#endif
+}
+
+// First stencil node along one axis of a particle at grid coordinate X (grid_coordinate; X - 0.5
+// is exact below 2^23).
 HOST_DEVICE inline int axis_base(float X) { return (int)floorf(X - 0.5f); }
 
 HOST_DEVICE inline AxisWeights axis_weights(float X, float inv_dx) {

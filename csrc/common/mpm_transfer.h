@@ -22,12 +22,12 @@ struct MPMGeometry {
 
 // Stencil weights of a particle at x (3 floats) along the three axes.
 HOST_DEVICE inline void stencil_weights(const float* x, const MPMGeometry& geo, AxisWeights aw[3]) {
-  for (int d = 0; d < 3; ++d) aw[d] = axis_weights((x[d] - geo.lower[d]) * geo.inv_dx, geo.inv_dx);
+  for (int d = 0; d < 3; ++d) aw[d] = axis_weights(grid_coordinate(x[d], geo.lower[d], geo.inv_dx), geo.inv_dx);
 }
 
-// The first stencil node alone (aw[d].base of stencil_weights, from the same expression).
+// The first stencil node alone (aw[d].base of stencil_weights, from the same grid coordinate).
 HOST_DEVICE inline void stencil_base(const float* x, const MPMGeometry& geo, int base[3]) {
-  for (int d = 0; d < 3; ++d) base[d] = axis_base((x[d] - geo.lower[d]) * geo.inv_dx);
+  for (int d = 0; d < 3; ++d) base[d] = axis_base(grid_coordinate(x[d], geo.lower[d], geo.inv_dx));
 }
 
 struct G2PInputs {

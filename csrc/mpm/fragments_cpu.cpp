@@ -131,25 +131,44 @@ void for_span_nodes(const int origin[3], const GridShape& s, const Body& body) {
   }
 }
 
-// Runs body(cell) for every particle cell, colour after colour (cells of one colour in parallel).
+// True if a stencil starting at l (relative to the cell's block origin) starts in the cell's
+// block: then its 27 nodes lie in the cell's span and stencil_slot(l) < 64.
+inline bool starts_in_block(const int l[3]) {
+  return ((unsigned)l[0] < (unsigned)kBlock) & ((unsigned)l[1] < (unsigned)kBlock) & ((unsigned)l[2] < (unsigned)kBlock);
+}
+
+// Keeps the smaller of two indices, -1 meaning none.
+inline long long first_of(long long a, long long b) { return a < 0 ? b : (b < 0 || a < b ? a : b); }
+
+// Runs body(cell) for every particle cell, colour after colour (cells of one colour in parallel);
+// body returns the smallest misplaced particle of its cell or -1, and so does this.
 template <class Body>
-void for_cells_by_color(const BinsView& bins, const Body& body) {
+long long for_cells_by_color(const BinsView& bins, const Body& body) {
+  long long misplaced = -1;
 #pragma omp parallel
-  for (int color = 0; color < 8; ++color) {
+  {
+    long long mine = -1;
+    for (int color = 0; color < 8; ++color) {
 #pragma omp for schedule(dynamic, 2)
-    for (int ci = bins.color_start[color]; ci < bins.color_start[color + 1]; ++ci) body(bins.color_cells[ci]);
+      for (int ci = bins.color_start[color]; ci < bins.color_start[color + 1]; ++ci)
+        mine = first_of(mine, body(bins.color_cells[ci]));
+    }
+#pragma omp critical(fgs_fragments_misplaced)
+    misplaced = first_of(misplaced, mine);
   }
+  return misplaced;
 }
 
 }  // namespace
 
-void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
-                            uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                            const DirectionView& directions, float* damage_gradient, int64_t* reference) {
+BoundReport fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
+                                   uint32_t split_bits, const float* grid_mass, const float* grid_damage,
+                                   const DirectionView& directions, float* damage_gradient, int64_t* reference) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
-  for_cells_by_color(bins, [&](int cell) {
+  BoundReport report;
+  report.misplaced = for_cells_by_color(bins, [&](int cell) -> long long {
     const int g = bins.cell_key[cell] / n_blocks, block = bins.cell_key[cell] % n_blocks;
     int origin[3];
     span_origin(block, s, origin);
@@ -169,7 +188,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
         float* gq = damage_gradient + 3 * (long long)bins.order[it];
         gq[0] = gq[1] = gq[2] = 0.f;
       }
-      return;
+      return -1;
     }
     // A particle whose stencil reaches no damaged node has the gradient +0 exactly (the sum below,
     // of zeros), and skips it.
@@ -178,12 +197,18 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     // nodes): one maximum per particle here, spread to the span's nodes once per cell below.
     int64_t origin_keys[kBlockNodes] = {};  // by stencil_slot
     bool any_key = false;
+    long long misplaced = -1;
     for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
       const int q = bins.order[it];
       float* gq = damage_gradient + 3 * (long long)q;
       AxisWeights aw[3];
       stencil_weights(x + 3 * (long long)q, geo, aw);
       const int l[3] = {aw[0].base - origin[0], aw[1].base - origin[1], aw[2].base - origin[2]};
+      if (!starts_in_block(l)) {  // outside the span: skipped (P2G reports it too)
+        gq[0] = gq[1] = gq[2] = 0.f;
+        misplaced = first_of(misplaced, q);
+        continue;
+      }
       if (!stencil_bit(reaches_damage, l)) {
         gq[0] = gq[1] = gq[2] = 0.f;
         continue;
@@ -196,7 +221,7 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
       int64_t& slot = origin_keys[stencil_slot(l)];
       slot = key > slot ? key : slot;
     }
-    if (!any_key) return;
+    if (!any_key) return misplaced;
     int64_t span_keys[kSpanNodes] = {};  // the cell's largest key per node of its span
     for_stencil_origins([&](const int l[3]) {
       const int64_t key = origin_keys[stencil_slot(l)];
@@ -211,7 +236,9 @@ void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeome
     for_span_nodes(origin, s, [&](int w, long long node) {
       if (span_keys[w] > keys[node]) keys[node] = span_keys[w];
     });
+    return misplaced;
   });
+  return report;
 }
 
 namespace {
@@ -244,12 +271,14 @@ inline uint32_t side_mask_in_window(const PartitionWindow& win, const int l[3], 
 
 // Sums the side-B share of the cell's particles into the window (particles that reach no split
 // node, or are on side A at every split node they reach, add nothing; split_particle and
-// side_mask record what each particle found, written for every particle of the cell).
-void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+// side_mask record what each particle found, written for every particle of the cell). Returns
+// the smallest particle whose stencil does not start in the cell's block (skipped), or -1.
+long long partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                     const FragmentView& frag, const int origin[3], PartitionWindow& win, uint8_t* split_particle,
                     int32_t* side_mask) {
   const float dx = geo.dx;
   const uint64_t reaches_split = stencils_reaching_positive(win.split);
+  long long misplaced = -1;
   for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) {
     const int q = bins.order[it];
     // The stencil's first node exactly as P2G and G2P compute it (the same expression); its
@@ -258,6 +287,12 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
     int base[3];
     stencil_base(xq, geo, base);
     const int l[3] = {base[0] - origin[0], base[1] - origin[1], base[2] - origin[2]};
+    if (!starts_in_block(l)) {  // outside the window: skipped (P2G reports it too)
+      split_particle[q] = 0;
+      side_mask[q] = 0;
+      misplaced = first_of(misplaced, q);
+      continue;
+    }
     if (!stencil_bit(reaches_split, l)) {  // no split node in reach: side A everywhere
       split_particle[q] = 0;
       side_mask[q] = 0;
@@ -292,19 +327,22 @@ void partition_cell(const BinsView& bins, int cell, const ParticleArrays& p, con
       }
     }
   }
+  return misplaced;
 }
 
 }  // namespace
 
-void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
-                      uint8_t* side_b_block) {
+BoundReport fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                             const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                             uint8_t* side_b_block) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_blocks = s.blocks();
+  BoundReport report;
 #pragma omp parallel
   {
     PartitionWindow win;  // per thread
+    long long misplaced = -1, bad_reference = -1;
     for (int color = 0; color < 8; ++color) {
 #pragma omp for schedule(dynamic, 2)
       for (int ci = bins.color_start[color]; ci < bins.color_start[color + 1]; ++ci) {
@@ -319,6 +357,10 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
         for_span_nodes(origin, s, [&](int w, long long node) {
           if (!key_is_split(keys[node], frag.split_bits)) return;
           const long long ref = key_particle(keys[node]);
+          if (ref >= bins.n_particles) {  // a key from another particle set: the node is not split
+            bad_reference = first_of(bad_reference, (long long)g * nodes + node);
+            return;
+          }
           for (int d = 0; d < 3; ++d) win.reference_gradient[d][w] = frag.damage_gradient[3 * ref + d];
           win.split[w] = 1.f;
           win.field_b[w] = Record{};  // field B is only summed and read at split nodes
@@ -332,7 +374,8 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
           }
           continue;
         }
-        partition_cell(bins, cell, p, geo, dt, frag, origin, win, split_particle, side_mask);
+        misplaced = first_of(misplaced, partition_cell(bins, cell, p, geo, dt, frag, origin, win, split_particle,
+                                                       side_mask));
         // Cells of one colour span disjoint blocks, so the flags are written without races.
         uint8_t* b_blocks = side_b_block + (long long)g * n_blocks;
         for_span_nodes(origin, s, [&](int w, long long node) {
@@ -351,7 +394,13 @@ void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGe
         });
       }
     }
+#pragma omp critical(fgs_fragments_report)
+    {
+      report.misplaced = first_of(report.misplaced, misplaced);
+      report.bad_reference = first_of(report.bad_reference, bad_reference);
+    }
   }
+  return report;
 }
 
 void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid) {

@@ -8,6 +8,7 @@
 #include <tuple>
 #include <vector>
 
+#include "bound_error.h"
 #include "common/constitutive.h"
 #include "mpm/mpm_kernels.h"
 
@@ -34,10 +35,98 @@ MPMGeometry make_geometry(const std::vector<double>& lower, double dx, const std
   for (int d = 0; d < 3; ++d) geo.lower[d] = (float)lower[d];
   geo.dx = (float)dx;
   geo.inv_dx = (float)(1.0 / dx);
+  TORCH_CHECK(blocks[0] >= 1 && blocks[1] >= 1 && blocks[2] >= 1 && n_grids >= 1,
+              "blocks and n_grids must be positive");
+  // Node indices within a grid and (grid, block) keys are int32 in the kernels.
+  const int64_t block_count = blocks[0] * blocks[1] * blocks[2];
+  if (block_count * kBlockNodes > kMaxInt32Count || block_count * n_grids > kMaxInt32Count)
+    throw_bound_error("a grid of ", blocks[0] * kBlock, "x", blocks[1] * kBlock, "x", blocks[2] * kBlock, " nodes (",
+                      n_grids, " fields) has more nodes or blocks than the kernels' int32 indices address; "
+                      "use a coarser grid");
   geo.shape = GridShape{(int)blocks[0], (int)blocks[1], (int)blocks[2]};
   geo.n_grids = (int)n_grids;
   return geo;
 }
+
+// The number of entries of an index list, checked to fit the kernels' int32 counts.
+int list_size(const Tensor& t, const char* name) {
+  if (t.numel() > kMaxInt32Count)
+    throw_bound_error(name, " has ", t.numel(), " entries, more than the kernels' int32 counts hold");
+  return (int)t.numel();
+}
+
+// Throws where an int32 list (on the CPU) holds an entry outside [0, limit): the kernels index
+// grid blocks or particles with it.
+void check_index_list(const Tensor& list, int64_t limit, const char* name, const char* what) {
+  if (!list.device().is_cpu()) return;
+  const int64_t i = first_outside(list.data_ptr<int32_t>(), list.numel(), limit);
+  if (i >= 0)
+    throw_bound_error(name, "[", i, "] = ", list.data_ptr<int32_t>()[i], " is not a valid ", what, " (0 .. ",
+                      limit - 1, ")");
+}
+
+// The bins of n particles as bin_particles returns them (order, cell_start, cell_key,
+// color_cells, color_start, touched, contact_blocks): their sizes always, and on the CPU every
+// index they hold, since the kernels index particles, cells and grid blocks with them. Returns
+// color_start on the host (it sizes the launches).
+Tensor check_bins(const std::vector<Tensor>& bins, int64_t n, const MPMGeometry& geo, const Tensor& like) {
+  TORCH_CHECK(bins.size() == 7, "bins must hold 7 tensors");
+  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, like);
+  if (n > kMaxInt32Count)
+    throw_bound_error(n, " particles are more than the kernels' int32 particle indices address");
+  const int64_t n_cells = bins[2].numel(), n_keys = (int64_t)geo.n_grids * geo.shape.blocks();
+  if (bins[0].numel() != n || bins[1].numel() != n_cells + 1 || bins[3].numel() != n_cells || bins[4].numel() != 9)
+    throw_bound_error("the bins do not fit ", n, " particles (order has ", bins[0].numel(), " entries, cell_start ",
+                      bins[1].numel(), ", cell_key ", n_cells, ", color_cells ", bins[3].numel(), ", color_start ",
+                      bins[4].numel(), " of 9)");
+  list_size(bins[5], "touched");
+  list_size(bins[6], "contact_blocks");
+  const Tensor color_start = bins[4].to(torch::kCPU);
+  const int32_t* cs = color_start.data_ptr<int32_t>();
+  for (int c = 0; c < 8; ++c)
+    if (cs[0] != 0 || cs[c + 1] < cs[c] || cs[8] != n_cells)
+      throw_bound_error("color_start is not a partition of the ", n_cells, " cells");
+  if (!like.device().is_cpu()) return color_start;  // the CUDA kernels check the indices they read
+  const int32_t* start = bins[1].data_ptr<int32_t>();
+  if (start[0] != 0 || start[n_cells] != n)
+    throw_bound_error("cell_start does not span the ", n, " particles");
+  for (int64_t c = 0; c < n_cells; ++c)
+    if (start[c + 1] < start[c]) throw_bound_error("cell_start decreases at cell ", c);
+  check_index_list(bins[0], n, "order", "particle index");
+  check_index_list(bins[2], n_keys, "cell_key", "(grid, block) key");
+  check_index_list(bins[3], n_cells, "color_cells", "cell index");
+  check_index_list(bins[5], n_keys, "touched", "(grid, block) key");
+  check_index_list(bins[6], geo.shape.blocks(), "contact_blocks", "block");
+  return color_start;
+}
+
+constexpr const char* kMisplaced =
+    "does not lie in the grid block it was sorted into (the bins do not match the positions); its stencil would "
+    "leave the kernel's window";
+
+// Throws for what a kernel reported out of bounds (BoundReport, or the CUDA kernels' bound slots);
+// misplaced_what: what is wrong with the misplaced particle.
+void throw_reported(long long misplaced, long long bad_index, const char* kernel,
+                    const char* misplaced_what = kMisplaced) {
+  if (misplaced >= 0) throw_bound_error(kernel, ": particle ", misplaced, " ", misplaced_what);
+  if (bad_index >= 0)
+    throw_bound_error(kernel, ": entry ", bad_index, " of an index list (or a reference key) names a particle or "
+                      "grid block that does not exist");
+}
+
+#ifdef FGS_WITH_CUDA
+// Device int64[kBoundSlots] for the CUDA kernels' reports, all INT64_MAX (nothing found).
+Tensor bound_slots(const Tensor& like) {
+  return torch::full({kBoundSlots}, std::numeric_limits<int64_t>::max(), like.options().dtype(torch::kInt64));
+}
+
+void throw_slots(const Tensor& slots, const char* kernel, const char* misplaced_what = kMisplaced) {
+  const Tensor host = slots.cpu();
+  const int64_t* h = host.data_ptr<int64_t>();
+  const int64_t none = std::numeric_limits<int64_t>::max();
+  throw_reported(h[0] == none ? -1 : h[0], h[1] == none ? -1 : h[1], kernel, misplaced_what);
+}
+#endif
 
 void check_grid(const Tensor& t, const char* name, int channels, const MPMGeometry& geo, const Tensor& like) {
   check_tensor(t, name, torch::kFloat32, like);
@@ -72,11 +161,13 @@ GridArrays grid_arrays(const MPMGeometry& geo, const Tensor& like, const Tensor&
   return g;
 }
 
-// The bins as the kernels read them; color_start must be a host tensor (it sizes the launches).
+// The bins as the kernels read them (checked first: check_bins); color_start must be a host
+// tensor (it sizes the launches).
 BinsView bins_view(const std::vector<Tensor>& bins, const Tensor& color_start) {
   return BinsView{bins[0].data_ptr<int32_t>(), bins[1].data_ptr<int32_t>(), bins[2].data_ptr<int32_t>(),
                   bins[3].data_ptr<int32_t>(), color_start.data_ptr<int32_t>(), bins[5].data_ptr<int32_t>(),
-                  (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel()};
+                  (int)bins[5].numel(), bins[6].data_ptr<int32_t>(), (int)bins[6].numel(),
+                  (long long)bins[0].numel(), (int)bins[2].numel()};
 }
 
 // Fragment view from (damage_gradient (N,3) float, reference (K*nodes) int64, split_particle (N) uint8).
@@ -143,20 +234,26 @@ Tensor fragment_reference(const std::vector<Tensor>& bins, const Tensor& x, cons
     directions.direction = d.data_ptr<float>();
     directions.stride = d.stride(0);
   }
+  TORCH_CHECK(grid_id.numel() == x.size(0), "fragment_reference: grid_id must have one entry per particle");
   Tensor damage_gradient = torch::empty({x.size(0), 3}, x.options());  // every row is written
   if (x.device().is_cpu()) {
-    for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
-    Tensor color_start = bins[4];
+    Tensor color_start = check_bins(bins, x.size(0), geo, x);
     const BinsView view = bins_view(bins, color_start);
-    fragment_reference_cpu(view, x.data_ptr<float>(), geo, (float)mass_eps, split_bits, grid_mass.data_ptr<float>(),
-                           grid_damage.data_ptr<float>(), directions, damage_gradient.data_ptr<float>(),
-                           grid_reference.data_ptr<int64_t>());
+    const BoundReport report = fragment_reference_cpu(
+        view, x.data_ptr<float>(), geo, (float)mass_eps, split_bits, grid_mass.data_ptr<float>(),
+        grid_damage.data_ptr<float>(), directions, damage_gradient.data_ptr<float>(),
+        grid_reference.data_ptr<int64_t>());
+    throw_reported(report.misplaced, report.bad_reference, "fragment_reference");
     return damage_gradient;
   }
 #ifdef FGS_WITH_CUDA
+  // Per particle, without the bins: a stencil leaving the grid (or a grid_id out of range) is reported.
+  Tensor slots = bound_slots(x);
   fragment_reference_cuda(x.size(0), x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), geo, (float)mass_eps,
                           split_bits, grid_mass.data_ptr<float>(), grid_damage.data_ptr<float>(), directions,
-                          damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>(), current_cuda_stream());
+                          damage_gradient.data_ptr<float>(), grid_reference.data_ptr<int64_t>(),
+                          reinterpret_cast<long long*>(slots.data_ptr<int64_t>()), current_cuda_stream());
+  throw_slots(slots, "fragment_reference", "has a stencil outside the grid (or a grid_id out of range)");
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -185,7 +282,7 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
                   rest_volume.numel() == n && grid_id.numel() == n && damage_gradient.numel() == 3 * n,
               "fragment_partition: particle arrays have inconsistent sizes");
   GridArrays grid = grid_arrays(both, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
-  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);
+  Tensor color_start = check_bins(bins, n, geo, x);
   // The CPU kernel writes every particle's row; the CUDA kernel only those of split particles.
   const bool on_cpu = x.device().is_cpu();
   const auto rows = [&](torch::ScalarType dtype) {
@@ -205,15 +302,18 @@ std::vector<Tensor> fragment_partition(const std::vector<Tensor>& bins, const Te
   const FragmentView frag = fragment_view({damage_gradient, grid_reference, split_particle}, geo, split_gradient, x);
   ParticleArrays p{x.data_ptr<float>(), v.data_ptr<float>(), C.data_ptr<float>(), stress.data_ptr<float>(),
                    mass.data_ptr<float>(), rest_volume.data_ptr<float>(), grid_id.data_ptr<int32_t>(), nullptr};
-  Tensor color_start = bins[4].to(torch::kCPU);
   const BinsView view = bins_view(bins, color_start);
   if (on_cpu) {
-    fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
-                     side_mask.data_ptr<int32_t>(), side_b_block);
+    const BoundReport report = fragment_p2g_cpu(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
+                                                side_mask.data_ptr<int32_t>(), side_b_block);
+    throw_reported(report.misplaced, report.bad_reference, "fragment_partition");
   } else {
 #ifdef FGS_WITH_CUDA
+    Tensor slots = bound_slots(x);
     fragment_p2g_cuda(view, p, geo, (float)dt, frag, grid, split_particle.data_ptr<uint8_t>(),
-                      side_mask.data_ptr<int32_t>(), side_b_block, current_cuda_stream());
+                      side_mask.data_ptr<int32_t>(), side_b_block, reinterpret_cast<long long*>(slots.data_ptr<int64_t>()),
+                      current_cuda_stream());
+    throw_slots(slots, "fragment_partition");
 #else
     TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -242,10 +342,18 @@ std::vector<Tensor> fragment_field_blocks(const Tensor& touched, const Tensor& c
     check_tensor(*t, "block list", torch::kInt32, touched);
     TORCH_CHECK(t->device().is_cpu(), "fragment_field_blocks runs on the CPU");
   }
+  TORCH_CHECK(n_blocks >= 1 && n_grids >= 1, "fragment_field_blocks: n_blocks and n_grids must be positive");
+  if (2 * n_grids * n_blocks > kMaxInt32Count)
+    throw_bound_error("fragment_field_blocks: ", 2 * n_grids, " grids of ", n_blocks,
+                      " blocks are more (grid, block) keys than int32 holds");
+  check_index_list(touched, n_grids * n_blocks, "touched", "(grid, block) key");
+  check_index_list(contact_blocks, n_blocks, "contact_blocks", "block");
+  check_index_list(split_keys, n_grids * n_blocks, "split_keys", "(grid, block) key");
   std::vector<int32_t> field_touched, field_contact;
-  fragment_field_blocks_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), contact_blocks.data_ptr<int32_t>(),
-                            (int)contact_blocks.numel(), split_keys.data_ptr<int32_t>(), (int)split_keys.numel(),
-                            (int)n_blocks, (int)n_grids, field_touched, field_contact);
+  fragment_field_blocks_cpu(touched.data_ptr<int32_t>(), list_size(touched, "touched"),
+                            contact_blocks.data_ptr<int32_t>(), list_size(contact_blocks, "contact_blocks"),
+                            split_keys.data_ptr<int32_t>(), list_size(split_keys, "split_keys"), (int)n_blocks,
+                            (int)n_grids, field_touched, field_contact);
   return {to_tensor(field_touched), to_tensor(field_contact)};
 }
 
@@ -257,12 +365,14 @@ void fragment_clear(const Tensor& keys, const std::vector<double>& lower, double
   check_tensor(keys, "keys", torch::kInt32, grid_mass);
   GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, grid_momentum, grid_velocity, grid_mass_gradient,
                                 grid_position_moment);
+  const int n_keys = list_size(keys, "keys");
+  check_index_list(keys, (int64_t)geo.n_grids * geo.shape.blocks(), "keys", "(grid, block) key");
   if (grid_mass.device().is_cpu()) {
-    fragment_clear_cpu(keys.data_ptr<int32_t>(), (int)keys.numel(), geo, grid);
+    fragment_clear_cpu(keys.data_ptr<int32_t>(), n_keys, geo, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
-  fragment_clear_cuda(keys.data_ptr<int32_t>(), (int)keys.numel(), geo, grid, current_cuda_stream());
+  fragment_clear_cuda(keys.data_ptr<int32_t>(), n_keys, geo, grid, current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -276,7 +386,10 @@ std::vector<Tensor> bin_particles(const Tensor& x, const Tensor& grid_id, const 
   check_tensor(x, "x", torch::kFloat32, x);
   check_tensor(grid_id, "grid_id", torch::kInt32, x);
   TORCH_CHECK(x.dim() == 2 && x.size(1) == 3, "x must be (N,3)");
+  TORCH_CHECK(grid_id.numel() == x.size(0), "mpm_bin_particles: grid_id must have one entry per particle");
   const MPMGeometry geo = make_geometry(lower, dx, blocks, n_grids);
+  if (x.size(0) > kMaxInt32Count)
+    throw_bound_error(x.size(0), " particles are more than the kernels' int32 particle indices address");
   ParticleBins bins;
   long long bad = bin_particles_cpu(x.data_ptr<float>(), grid_id.data_ptr<int32_t>(), x.size(0), geo, &bins);
   TORCH_CHECK(bad < 0, "particle ", bad, " is outside the grid (or has a non-finite position)");
@@ -303,7 +416,7 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
                   rest_volume.numel() == n && grid_id.numel() == n,
               "p2g: particle arrays have inconsistent sizes");
   GridArrays grid = grid_arrays(geo, x, grid_mass, grid_momentum, Tensor(), grid_mass_gradient, grid_position_moment);
-  for (const auto& b : bins) check_tensor(b, "bins", torch::kInt32, x);  // also: on the particles' device
+  Tensor color_start = check_bins(bins, n, geo, x);  // also: on the particles' device
   TORCH_CHECK(damaged.has_value() == grid_damage.has_value() && damaged.has_value() == grid_reference.has_value(),
               "p2g: give damaged, grid_damage and grid_reference together (fragments) or none");
   if (damaged) {
@@ -320,14 +433,17 @@ void p2g(const std::vector<Tensor>& bins, const Tensor& x, const Tensor& v, cons
     grid.damage = grid_damage->data_ptr<float>();
     grid.reference = grid_reference->data_ptr<int64_t>();
   }
-  Tensor color_start = bins[4].to(torch::kCPU);
   const BinsView view = bins_view(bins, color_start);
   if (x.device().is_cpu()) {
-    p2g_cpu(view, p, geo, (float)dt, grid);
+    const BoundReport report = p2g_cpu(view, p, geo, (float)dt, grid);
+    throw_reported(report.misplaced, report.bad_reference, "p2g");
     return;
   }
 #ifdef FGS_WITH_CUDA
-  p2g_cuda(view, p, geo, (float)dt, grid, current_cuda_stream());
+  Tensor slots = bound_slots(x);
+  p2g_cuda(view, p, geo, (float)dt, grid, reinterpret_cast<long long*>(slots.data_ptr<int64_t>()),
+           current_cuda_stream());
+  throw_slots(slots, "p2g");
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -341,12 +457,14 @@ void grid_update(const Tensor& touched, const std::vector<double>& lower, double
   GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, grid_momentum, grid_velocity, std::nullopt, std::nullopt);
   TORCH_CHECK(gravity.size() == 3, "gravity must have 3 entries");
   const float g[3] = {(float)gravity[0], (float)gravity[1], (float)gravity[2]};
+  const int n_touched = list_size(touched, "touched");
+  check_index_list(touched, (int64_t)geo.n_grids * geo.shape.blocks(), "touched", "(grid, block) key");
   if (grid_mass.device().is_cpu()) {
-    grid_update_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid);
+    grid_update_cpu(touched.data_ptr<int32_t>(), n_touched, geo, (float)dt, g, (float)mass_eps, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
-  grid_update_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, (float)dt, g, (float)mass_eps, grid,
+  grid_update_cuda(touched.data_ptr<int32_t>(), n_touched, geo, (float)dt, g, (float)mass_eps, grid,
                    current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
@@ -377,13 +495,14 @@ void boundaries(const Tensor& touched, const std::vector<double>& lower, double 
   GridArrays grid = grid_arrays(geo, grid_mass, grid_mass, Tensor(), grid_velocity, std::nullopt, std::nullopt);
   const BoundaryParams bc = make_boundary(wall_condition, wall_cells, cells, has_ground, ground_height,
                                           ground_friction, lower[2], dx);
+  const int n_touched = list_size(touched, "touched");
+  check_index_list(touched, (int64_t)geo.n_grids * geo.shape.blocks(), "touched", "(grid, block) key");
   if (grid_mass.device().is_cpu()) {
-    boundaries_cpu(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid);
+    boundaries_cpu(touched.data_ptr<int32_t>(), n_touched, geo, bc, (float)mass_eps, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
-  boundaries_cuda(touched.data_ptr<int32_t>(), (int)touched.numel(), geo, bc, (float)mass_eps, grid,
-                  current_cuda_stream());
+  boundaries_cuda(touched.data_ptr<int32_t>(), n_touched, geo, bc, (float)mass_eps, grid, current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif
@@ -399,13 +518,14 @@ void collision(const Tensor& contact_blocks, const std::vector<double>& lower, d
                                 grid_position_moment);
   TORCH_CHECK(friction >= 0.0, "contact friction must be >= 0, got ", friction);
   const ContactParams params{(float)impulse_scale, (float)friction, (float)mass_eps, (float)max_gap, (float)inside};
+  const int n_contact = list_size(contact_blocks, "contact_blocks");
+  check_index_list(contact_blocks, geo.shape.blocks(), "contact_blocks", "block");
   if (grid_mass.device().is_cpu()) {
-    collision_cpu(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid);
+    collision_cpu(contact_blocks.data_ptr<int32_t>(), n_contact, geo, params, grid);
     return;
   }
 #ifdef FGS_WITH_CUDA
-  collision_cuda(contact_blocks.data_ptr<int32_t>(), (int)contact_blocks.numel(), geo, params, grid,
-                 current_cuda_stream());
+  collision_cuda(contact_blocks.data_ptr<int32_t>(), n_contact, geo, params, grid, current_cuda_stream());
 #else
   TORCH_CHECK(false, "fracture_gs._C was built without CUDA kernels");
 #endif

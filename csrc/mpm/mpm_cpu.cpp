@@ -6,6 +6,7 @@
 #include <atomic>
 #include <omp.h>
 #include <cstring>
+#include <limits>
 #include <vector>
 
 #include "mpm/constitutive_batch.h"
@@ -76,6 +77,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   std::vector<int32_t> slot((size_t)parts * n_keys, 0);
   std::vector<long long> chunk_total(parts + 1, 0), chunk_cells(parts + 1, 0);
   long long bad = -1;
+  int counted_by = parts;  // the team that counted: its ranges and slot rows place the particles below
 #pragma omp parallel num_threads(parts) reduction(max : bad)
   {
     const int t = omp_get_thread_num(), team = omp_get_num_threads();
@@ -87,9 +89,9 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
       bool ok = grid_id[p] >= 0 && grid_id[p] < geo.n_grids;
       uint8_t r = 0;
       for (int d = 0; d < 3; ++d) {
-        float X = (x[3 * p + d] - geo.lower[d]) * geo.inv_dx;
+        const float X = grid_coordinate(x[3 * p + d], geo.lower[d], geo.inv_dx);  // as P2G's stencil
         ok = ok && X >= 0.5f && X < (float)limit[d] + 0.5f;  // also false for NaN
-        base[d] = ok ? (int)floorf(X - 0.5f) : 0;
+        base[d] = ok ? axis_base(X) : 0;
         if ((base[d] & (kBlock - 1)) >= kBlock - 2) r |= (uint8_t)(1 << d);
       }
       if (!ok) {
@@ -126,6 +128,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
 #pragma omp barrier
 #pragma omp single
     {
+      counted_by = team;
       for (int u = 0; u < team; ++u) {
         chunk_total[u + 1] += chunk_total[u];
         chunk_cells[u + 1] += chunk_cells[u];
@@ -153,11 +156,12 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   const int n_cells = (int)bins->cell_key.size();
   bins->cell_start[n_cells] = (int32_t)n;
   bins->order.resize(n);
-#pragma omp parallel num_threads(parts)
-  {
-    const int t = omp_get_thread_num(), team = omp_get_num_threads();
+  // Each range of the counting team is scattered with its own slots, whatever team runs this
+  // region (a range counted by one thread must not be placed with another range's slots).
+#pragma omp parallel num_threads(counted_by)
+  for (int t = omp_get_thread_num(); t < counted_by; t += omp_get_num_threads()) {
     long long begin, end;
-    split_range(n, team, t, &begin, &end);
+    split_range(n, counted_by, t, &begin, &end);
     int32_t* cursor = slot.data() + (size_t)t * n_keys;
     int32_t* order = bins->order.data();
     for (long long p = begin; p < end;) {  // run by run, as the counting
@@ -241,27 +245,41 @@ inline void prefetch_particle(const ParticleArrays& p, int q) {
   __builtin_prefetch(p.rest_volume + q);
 }
 
+// True if a stencil whose first node lies at l relative to a cell's block origin starts in that
+// block: then it stays inside the cell's window (P2G) or span (fragments), and reaches only the
+// blocks the binning marked touched.
+inline bool starts_in_block(int lx, int ly, int lz) {
+  return ((unsigned)lx < (unsigned)kBlock) & ((unsigned)ly < (unsigned)kBlock) & ((unsigned)lz < (unsigned)kBlock);
+}
+
 // Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
 // the window's first node. kWithContact: also the mass gradient into `gradient_window` (zeroed
-// here; lanes 0-2), which only the contact pass reads.
+// here; lanes 0-2), which only the contact pass reads. Returns the smallest index of a particle
+// of the cell whose stencil does not start in the cell's block (it is skipped: its nodes lie
+// outside the window), or -1.
 template <bool kWithContact>
-void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                     const int origin[3], Record* FGS_RESTRICT window, Lane4* FGS_RESTRICT gradient_window) {
+long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                          const int origin[3], Record* FGS_RESTRICT window, Lane4* FGS_RESTRICT gradient_window) {
   std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
   if constexpr (kWithContact) std::memset(static_cast<void*>(gradient_window), 0, sizeof(Lane4) * kWindowNodes);
   const float dx = geo.dx;
   const int end = bins.cell_start[cell + 1];
+  long long misplaced = -1;
   for (int it = bins.cell_start[cell]; it < end; ++it) {
     const int q = bins.order[it];
     if (it + kPrefetchAhead < end) prefetch_particle(p, bins.order[it + kPrefetchAhead]);
     AxisWeights aw[3];
     stencil_weights(p.x + 3 * q, geo, aw);
+    const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
+    if (!starts_in_block(lx, ly, lz)) {
+      misplaced = misplaced < 0 || q < misplaced ? q : misplaced;
+      continue;
+    }
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
     const float damage = p.damaged ? m * particle_damage(p.damaged[q]) : 0.f;
     const ParticleRecords records = particle_records(m, p.v + 3 * q, A, damage);  // csrc/mpm/p2g_records.h
-    const int lx = aw[0].base - origin[0], ly = aw[1].base - origin[1], lz = aw[2].base - origin[2];
     for (int a = 0; a < 3; ++a) {
       for (int b = 0; b < 3; ++b) {
         const ColumnRecords column = column_records(records, aw, a, b, dx);
@@ -275,6 +293,7 @@ void p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, co
       }
     }
   }
+  return misplaced;
 }
 
 // Adds a cell's window into the grid fields of its object (blocks outside the grid are skipped:
@@ -317,8 +336,8 @@ void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRI
 
 }  // namespace
 
-void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-             GridArrays grid) {
+BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                    GridArrays grid) {
   const GridShape& s = geo.shape;
   const long long nodes = s.nodes();
   const int n_touched = bins.n_touched;
@@ -347,7 +366,8 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
     for (int i = 0; i < bins.n_contact; ++i) contact_flag[bins.contact_blocks[i]] = 1;
   }
   const uint8_t* contact = contact_flag.empty() ? nullptr : contact_flag.data();
-#pragma omp parallel
+  long long misplaced = std::numeric_limits<long long>::max();
+#pragma omp parallel reduction(min : misplaced)
   {
     std::vector<Record> window(kWindowNodes);  // per thread
     std::vector<Lane4> gradient_window(contact ? kWindowNodes : 0);
@@ -367,10 +387,10 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
                 const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
                 if (bi < s.bx && bj < s.by && bk < s.bz) near_contact |= contact[(bi * s.by + bj) * s.bz + bk] != 0;
               }
-        if (near_contact)
-          p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data(), gradient_window.data());
-        else
-          p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data(), nullptr);
+        const long long stray =
+            near_contact ? p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data(), gradient_window.data())
+                         : p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data(), nullptr);
+        if (stray >= 0 && stray < misplaced) misplaced = stray;
         const long long grid_offset = (long long)grid_index * nodes;
         p2g_flush_window(window.data(), gradient_window.data(), block_ijk, s, near_contact ? contact : nullptr,
                          grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
@@ -380,6 +400,9 @@ void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& g
       }
     }
   }
+  BoundReport report;
+  if (misplaced != std::numeric_limits<long long>::max()) report.misplaced = misplaced;
+  return report;
 }
 
 void grid_update_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,

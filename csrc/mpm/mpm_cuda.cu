@@ -32,11 +32,22 @@ struct StagedParticle {
   float A[9];
 };
 
-__global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long long nodes, int n_blocks,
-                                   GridArrays grid) {
+// True if a (grid, block) key read from a list lies in the grids (the launchers skip the others).
+__device__ inline bool key_in_grids(int key, const MPMGeometry& geo) {
+  return key >= 0 && key < geo.n_grids * geo.shape.blocks();
+}
+
+__global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, MPMGeometry geo, GridArrays grid,
+                                   long long* bounds) {
   long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_touched * kBlockNodes) return;
+  const long long nodes = geo.shape.nodes();
+  const int n_blocks = geo.shape.blocks();
   int key = touched[t / kBlockNodes];
+  if (!key_in_grids(key, geo)) {
+    atomicMin(bounds + 1, t / kBlockNodes);
+    return;
+  }
   long long idx = (long long)(key / n_blocks) * nodes + (long long)(key % n_blocks) * kBlockNodes + t % kBlockNodes;
   grid.mass[idx] = 0.f;
   for (int d = 0; d < 3; ++d) grid.momentum[3 * idx + d] = 0.f;
@@ -48,12 +59,53 @@ __global__ void zero_blocks_kernel(const int32_t* touched, int n_touched, long l
   if (grid.reference) grid.reference[idx] = 0;
 }
 
+// The stencil base of a staged entry that P2G skips: no node of the tile matches it.
+constexpr int kNoBase = -(1 << 20);
+
+// Stages entry `it` of order (a particle of the cell whose block starts at node `origin`). A
+// particle index out of range, or a stencil that does not start in the cell's block (the tile
+// holds that block and its upper neighbours only), is reported in bounds and staged so that no
+// node takes it.
+__device__ inline void stage_particle(const BinsView& bins, int it, const ParticleArrays& p, const MPMGeometry& geo,
+                                      float dt, const int origin[3], StagedParticle& sp, long long* bounds) {
+  sp.base[0] = sp.base[1] = sp.base[2] = kNoBase;
+  const int q = bins.order[it];
+  if (q < 0 || q >= bins.n_particles) {
+    atomicMin(bounds + 1, (long long)it);
+    return;
+  }
+  AxisWeights aw[3];
+  stencil_weights(p.x + 3 * q, geo, aw);
+  for (int d = 0; d < 3; ++d)
+    if (aw[d].base - origin[d] < 0 || aw[d].base - origin[d] >= kBlock) {
+      atomicMin(bounds, (long long)q);
+      return;
+    }
+  for (int d = 0; d < 3; ++d) {
+    sp.base[d] = aw[d].base;
+    sp.f[d] = aw[d].f;
+    for (int a = 0; a < 3; ++a) {
+      sp.w[d][a] = aw[d].w[a];
+      sp.dw[d][a] = aw[d].dw[a];
+    }
+  }
+  sp.mass = p.mass[q];
+  sp.damage = p.damaged ? sp.mass * particle_damage(p.damaged[q]) : 0.f;
+  for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
+  apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
+}
+
 __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays p, MPMGeometry geo, float dt,
-                                 GridArrays grid) {
+                                 GridArrays grid, long long* bounds) {
   __shared__ StagedParticle staged[kChunk];
   const GridShape s = geo.shape;
   const int n_blocks = s.blocks();
   const int cell = bins.color_cells[color_begin + blockIdx.x];
+  if (cell < 0 || cell >= bins.n_cells || !key_in_grids(bins.cell_key[cell], geo) || bins.cell_start[cell] < 0 ||
+      bins.cell_start[cell + 1] > bins.n_particles) {
+    if (threadIdx.x == 0) atomicMin(bounds + 1, (long long)(color_begin + blockIdx.x));
+    return;
+  }
   const int key = bins.cell_key[cell];
   const int g = key / n_blocks, block = key % n_blocks;
   const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
@@ -65,24 +117,7 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   const int first = bins.cell_start[cell], last = bins.cell_start[cell + 1];
   for (int chunk = first; chunk < last; chunk += kChunk) {
     const int count = min(kChunk, last - chunk);
-    if (t < count) {
-      const int q = bins.order[chunk + t];
-      StagedParticle& sp = staged[t];
-      AxisWeights aw[3];
-      stencil_weights(p.x + 3 * q, geo, aw);
-      for (int d = 0; d < 3; ++d) {
-        sp.base[d] = aw[d].base;
-        sp.f[d] = aw[d].f;
-        for (int a = 0; a < 3; ++a) {
-          sp.w[d][a] = aw[d].w[a];
-          sp.dw[d][a] = aw[d].dw[a];
-        }
-      }
-      sp.mass = p.mass[q];
-      sp.damage = p.damaged ? sp.mass * particle_damage(p.damaged[q]) : 0.f;
-      for (int d = 0; d < 3; ++d) sp.mv[d] = sp.mass * p.v[3 * q + d];
-      apic_affine(p.C + 9 * q, p.stress + 9 * q, sp.mass, p.rest_volume[q], dt, geo.inv_dx, sp.A);
-    }
+    if (t < count) stage_particle(bins, chunk + t, p, geo, dt, origin, staged[t], bounds);
     __syncthreads();
     if (t < kTileNodes) {
       for (int i = 0; i < count; ++i) {
@@ -124,6 +159,7 @@ __global__ void grid_update_kernel(const int32_t* touched, int n_touched, MPMGeo
   if (t >= (long long)n_touched * kBlockNodes) return;
   const int n_blocks = geo.shape.blocks();
   const int key = touched[t / kBlockNodes];
+  if (!key_in_grids(key, geo)) return;
   const long long idx = (long long)(key / n_blocks) * geo.shape.nodes() + (long long)(key % n_blocks) * kBlockNodes +
                         t % kBlockNodes;
   const float gravity[3] = {gx, gy, gz};
@@ -136,6 +172,7 @@ __global__ void boundaries_kernel(const int32_t* touched, int n_touched, MPMGeom
   if (t >= (long long)n_touched * kBlockNodes) return;
   const int n_blocks = geo.shape.blocks();
   const int key = touched[t / kBlockNodes];
+  if (!key_in_grids(key, geo)) return;
   const int block = key % n_blocks, local = (int)(t % kBlockNodes);
   const long long idx = (long long)(key / n_blocks) * geo.shape.nodes() + (long long)block * kBlockNodes + local;
   if (!(grid.mass[idx] > mass_eps)) return;
@@ -148,7 +185,9 @@ __global__ void collision_kernel(const int32_t* contact_blocks, int n_contact, M
                                  GridArrays grid) {
   long long t = blockIdx.x * (long long)blockDim.x + threadIdx.x;
   if (t >= (long long)n_contact * kBlockNodes) return;
-  const long long node = (long long)contact_blocks[t / kBlockNodes] * kBlockNodes + t % kBlockNodes;
+  const int block = contact_blocks[t / kBlockNodes];
+  if (block < 0 || block >= geo.shape.blocks()) return;
+  const long long node = (long long)block * kBlockNodes + t % kBlockNodes;
   contact_node(node, geo.shape.nodes(), geo.n_grids, grid.mass, grid.velocity, grid.mass_gradient,
                grid.position_moment, params);
 }
@@ -172,15 +211,15 @@ __global__ void g2p_kernel(long long n, G2PInputs in, MPMGeometry geo, float dt,
 }  // namespace
 
 void p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt, GridArrays grid,
-              void* stream) {
+              long long* bounds, void* stream) {
   static_assert(kTileNodes <= kP2GThreads, "one thread per tile node");
   cudaStream_t st = as_stream(stream);
   if (bins.n_touched > 0)
     zero_blocks_kernel<<<blocks_for((long long)bins.n_touched * kBlockNodes, kThreads), kThreads, 0, st>>>(
-        bins.touched, bins.n_touched, geo.shape.nodes(), geo.shape.blocks(), grid);
+        bins.touched, bins.n_touched, geo, grid, bounds);
   for (int color = 0; color < 8; ++color) {
     const int begin = bins.color_start[color], count = bins.color_start[color + 1] - begin;
-    if (count > 0) p2g_color_kernel<<<count, kP2GThreads, 0, st>>>(bins, begin, p, geo, dt, grid);
+    if (count > 0) p2g_color_kernel<<<count, kP2GThreads, 0, st>>>(bins, begin, p, geo, dt, grid, bounds);
   }
 }
 

@@ -25,7 +25,9 @@ struct ParticleBins {
 };
 
 // Read-only view of the bins for the P2G launch (device pointers for CUDA, except color_start
-// which is always on the host because it sizes the launches).
+// which is always on the host because it sizes the launches). The binding checks the bins'
+// sizes and, on the CPU, every index they hold (check_bins in mpm_bind.cpp); the CUDA kernels
+// check the indices they read.
 struct BinsView {
   const int32_t* order;
   const int32_t* cell_start;
@@ -36,7 +38,15 @@ struct BinsView {
   int n_touched;
   const int32_t* contact_blocks;  // host pointer on the CPU path (P2G reads it there only)
   int n_contact;
+  long long n_particles;  // N: the entries of order, and the particle arrays' rows
+  int n_cells;            // P: cells (entries of cell_key and color_cells)
 };
+
+// What the CUDA P2G-side kernels found out of bounds (device int64[2], both initialised by the
+// caller to INT64_MAX; atomicMin keeps the first): [0] the smallest particle index whose stencil
+// does not start in its cell's block (or, for the fragment reference pass, leaves the grid),
+// [1] the smallest position in order / the key lists holding an index out of range.
+constexpr int kBoundSlots = 2;
 
 struct ParticleArrays {  // inputs of P2G, N rows each
   const float* x;
@@ -59,11 +69,20 @@ struct GridArrays {  // n_grids * nodes rows each
   int64_t* reference = nullptr;  // (K * nodes) fragment reference keys (zeroed by P2G), or nullptr
 };
 
+// What a CPU kernel found out of bounds, -1 where nothing: the smallest particle index whose
+// stencil does not start in the block of the cell it was sorted into (P2G's windows hold that
+// block and its upper neighbours only; the particle is skipped), and the smallest node whose
+// reference key names a particle index >= N (the node is treated as not split).
+struct BoundReport {
+  long long misplaced = -1;
+  long long bad_reference = -1;
+};
+
 // Returns -1 on success or the index of a particle whose stencil leaves the grid.
 long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
                             const MPMGeometry& geo, ParticleBins* bins);
-void p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-             GridArrays grid);
+BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                    GridArrays grid);
 void grid_update_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,
                      const float* gravity, float mass_eps, GridArrays grid);
 void boundaries_cpu(const int32_t* touched, int n_touched, const MPMGeometry& geo,
@@ -80,17 +99,17 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
 // (reference must be zero on entry: P2G clears it on touched blocks). Only keys that split a node
 // (|grad D|^2 bits >= split_bits) are stored: the others could never be read. directions: particles
 // with a non-zero split direction take it, scaled, as their vector (apply_split_direction).
-void fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
-                            uint32_t split_bits, const float* grid_mass, const float* grid_damage,
-                            const DirectionView& directions, float* damage_gradient, int64_t* reference);
+BoundReport fragment_reference_cpu(const BinsView& bins, const float* x, const MPMGeometry& geo, float mass_eps,
+                                   uint32_t split_bits, const float* grid_mass, const float* grid_damage,
+                                   const DirectionView& directions, float* damage_gradient, int64_t* reference);
 // Sums field B (grid K + g) at the split nodes from the particles on side B there (field A keeps
 // P2G's sum of all particles); split_particle[q] = 1 if q's stencil reaches a split node, else 0,
 // side_mask[q] the bits (side_bit) of its stencil nodes where it is on side B (both written for
 // every particle); side_b_block[key] = 1 for the (grid, block) keys of the K grids where field B
 // got mass (zero it before).
-void fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                      const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
-                      uint8_t* side_b_block);
+BoundReport fragment_p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                             const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
+                             uint8_t* side_b_block);
 // After fragment_p2g: field A of every node with side-B mass in the given (grid, block) keys
 // becomes P2G's sum minus side B's share (split_node_fields, csrc/common/mpm_fragments.h).
 void fragment_merge_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
@@ -104,9 +123,10 @@ void fragment_field_blocks_cpu(const int32_t* touched, int n_touched, const int3
 void fragment_clear_cpu(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid);
 
 #ifdef FGS_WITH_CUDA
-// CUDA launchers: device pointers, stream is a cudaStream_t.
+// CUDA launchers: device pointers, stream is a cudaStream_t. bounds: device int64[kBoundSlots]
+// (see kBoundSlots). Launchers over key lists skip an entry outside the grids.
 void p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-              GridArrays grid, void* stream);
+              GridArrays grid, long long* bounds, void* stream);
 void grid_update_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo, float dt,
                       const float* gravity_host, float mass_eps, GridArrays grid, void* stream);
 void boundaries_cuda(const int32_t* touched, int n_touched, const MPMGeometry& geo,
@@ -121,10 +141,10 @@ void g2p_cuda(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt
 void fragment_reference_cuda(long long n, const float* x, const int32_t* grid_id, const MPMGeometry& geo,
                              float mass_eps, uint32_t split_bits, const float* grid_mass, const float* grid_damage,
                              const DirectionView& directions, float* damage_gradient,
-                             int64_t* reference, void* stream);
+                             int64_t* reference, long long* bounds, void* stream);
 void fragment_p2g_cuda(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
                        const FragmentView& frag, GridArrays grid, uint8_t* split_particle, int32_t* side_mask,
-                       uint8_t* side_b_block, void* stream);
+                       uint8_t* side_b_block, long long* bounds, void* stream);
 void fragment_merge_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 void fragment_clear_cuda(const int32_t* keys, int n_keys, const MPMGeometry& geo, GridArrays grid, void* stream);
 #endif

@@ -7,6 +7,7 @@
 #include <optional>
 #include <vector>
 
+#include "bound_error.h"
 #include "common/blend.h"
 #include "raster/raster_kernels.h"
 
@@ -33,6 +34,39 @@ void check_float(const torch::Tensor& t, const char* name, const torch::Device& 
 
 void check_opt(const OptTensor& t, const char* name, const torch::Device& device) {
   if (t.has_value()) check_float(*t, name, device);
+}
+
+// Throws unless t holds `per_gaussian` values for each of the n Gaussians (the kernels read row
+// i of every input for Gaussian i).
+void check_rows(const torch::Tensor& t, const char* name, int64_t n, int64_t per_gaussian) {
+  TORCH_CHECK(t.dim() >= 1 && t.size(0) == n && t.numel() == n * per_gaussian, "rasterize: ", name, " must have ",
+              per_gaussian, " values for each of the ", n, " Gaussians, got shape ", t.sizes());
+}
+
+// The group rule's next[] (exclusive_next) must link the members of each group in a ring:
+// entries -1 or a Gaussian index, and every member the next of exactly one member. The kernels
+// follow next[] until they are back at the Gaussian they started from.
+void check_group_rings(const torch::Tensor& next, int64_t n) {
+  if (!next.device().is_cpu()) {
+    const torch::Tensor valid = next.ge(-1).logical_and(next.lt(n)).all();
+    TORCH_CHECK(valid.item<bool>(), "rasterize: exclusive_next entries must be -1 or Gaussian indices");
+    const torch::Tensor members = next.ge(0);
+    const torch::Tensor targets = next.masked_select(members).to(torch::kInt64);
+    const torch::Tensor hits = torch::bincount(targets, {}, n);
+    TORCH_CHECK(hits.eq(members.to(torch::kInt64)).all().item<bool>(),
+                "rasterize: exclusive_next must link each group's members in a ring");
+    return;
+  }
+  const int32_t* v = next.data_ptr<int32_t>();
+  std::vector<uint8_t> hit(n, 0);
+  for (int64_t i = 0; i < n; ++i) {
+    TORCH_CHECK(v[i] >= -1 && v[i] < n, "rasterize: exclusive_next[", i, "] = ", v[i],
+                " is neither -1 nor a Gaussian index");
+    if (v[i] < 0) continue;
+    TORCH_CHECK(!hit[v[i]] && v[v[i]] >= 0, "rasterize: exclusive_next must link each group's members in a ring ",
+                "(Gaussian ", v[i], ")");
+    hit[v[i]] = 1;
+  }
 }
 
 CameraParams make_camera(const torch::Tensor& world_to_camera, double fx, double fy, double cx,
@@ -71,8 +105,18 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
   TORCH_CHECK(covariances.has_value() != (scales.has_value() && quats.has_value()),
               "rasterize: give either scales+quats or covariances");
   TORCH_CHECK(sh.has_value() != colors.has_value(), "rasterize: give either sh or colors");
+  TORCH_CHECK(means.dim() == 2 && means.size(1) == 3, "rasterize: means must have shape (N, 3)");
+  const int64_t n = means.size(0);
+  if (n > kMaxInt32Count)
+    throw_bound_error("rasterize: ", n, " Gaussians are more than the rasterizer's int32 indices address");
+  check_rows(opacities, "opacities", n, 1);
+  if (scales) check_rows(*scales, "scales", n, 3);
+  if (quats) check_rows(*quats, "quats", n, 4);
+  if (covariances) check_rows(*covariances, "covariances", n, 9);
+  if (colors) check_rows(*colors, "colors", n, 3);
+  if (view_rotations) check_rows(*view_rotations, "view_rotations", n, 9);
   GaussianInputs in;
-  in.num = means.size(0);
+  in.num = n;
   in.means = means.data_ptr<float>();
   in.opacities = opacities.data_ptr<float>();
   in.scales = fptr(scales);
@@ -82,6 +126,8 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
   in.colors = fptr(colors);
   in.view_rotations = fptr(view_rotations);
   if (sh.has_value()) {
+    TORCH_CHECK(sh->dim() == 3 && sh->size(2) == 3, "rasterize: sh must have shape (N, K, 3)");
+    check_rows(*sh, "sh", n, 3 * sh->size(1));
     const int64_t K = sh->size(1);
     int degree = 0;
     while ((degree + 1) * (degree + 1) < K) ++degree;
@@ -93,6 +139,7 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
     TORCH_CHECK(exclusive->scalar_type() == torch::kUInt8 && exclusive->is_contiguous() &&
                     exclusive->device() == device,
                 "rasterize: exclusive must be a contiguous uint8 tensor on the means' device");
+    check_rows(*exclusive, "exclusive", n, 1);
     in.exclusive.flags = exclusive->data_ptr<uint8_t>();
   }
   if (exclusive_next.has_value()) {
@@ -100,6 +147,7 @@ GaussianInputs make_inputs(const torch::Tensor& means, const torch::Tensor& opac
     TORCH_CHECK(exclusive_next->scalar_type() == torch::kInt32 && exclusive_next->is_contiguous() &&
                     exclusive_next->device() == device && exclusive_next->numel() == in.num,
                 "rasterize: exclusive_next must be a contiguous int32 (N,) tensor on the means' device");
+    check_group_rings(*exclusive_next, n);
     in.exclusive.next = exclusive_next->data_ptr<int32_t>();
   }
   return in;
@@ -122,6 +170,15 @@ raster::ExclusiveRule exclusive_rule(const GaussianInputs& in, const torch::Tens
   }
   rule.earlier = earlier.data_ptr<int32_t>();
   return rule;
+}
+
+// The tile lists hold one int32 slot per (Gaussian, tile) pair that a Gaussian's footprint
+// covers: huge footprints on a large image can need more than int32 counts.
+void check_slot_count(int64_t total, int64_t n) {
+  if (total > kMaxInt32Count)
+    throw_bound_error("rasterize: the footprints of ", n, " Gaussians cover ", total, " (Gaussian, tile) pairs, more "
+                      "than the rasterizer's int32 tile lists hold (", kMaxInt32Count, "); render a smaller image "
+                      "or fewer, smaller Gaussians");
 }
 
 // Returns (rgb, alpha, depth, radii, proj, slot_offset, tile_start, tile_slots,
@@ -167,6 +224,7 @@ std::vector<torch::Tensor> raster_forward(
     const int64_t total = raster::slot_offsets_cuda(N, tiles_touched.data_ptr<int32_t>(),
                                                     slot_offset.data_ptr<int64_t>(),
                                                     scan_scratch.data_ptr(), scan_bytes, stream);
+    check_slot_count(total, N);
     tile_slots = torch::empty({total}, iopt);
     slot_gaussian = torch::empty({total}, iopt);
     torch::Tensor keys = torch::empty({2 * total + 1}, means.options().dtype(torch::kInt64));
@@ -191,6 +249,7 @@ std::vector<torch::Tensor> raster_forward(
                            radii.data_ptr<int32_t>(), tiles_touched.data_ptr<int32_t>());
     const int64_t total = raster::slot_offsets_cpu(N, tiles_touched.data_ptr<int32_t>(),
                                                    slot_offset.data_ptr<int64_t>());
+    check_slot_count(total, N);
     tile_slots = torch::empty({total}, iopt);
     slot_gaussian = torch::empty({total}, iopt);
     raster::bin_cpu(cam, N, proj.data_ptr<float>(), rect.data_ptr<int32_t>(),
@@ -204,6 +263,36 @@ std::vector<torch::Tensor> raster_forward(
   }
   return {rgb, alpha, depth, radii, proj, slot_offset, tile_start, tile_slots, slot_gaussian,
           final_T, n_contrib, winner};
+}
+
+// The forward's state handed to the backward must be that of these Gaussians and this image:
+// the backward indexes the Gaussians, slots and pixels with it.
+void check_forward_state(int64_t n, int64_t tiles, int64_t width, int64_t height, const torch::Tensor& proj,
+                         const torch::Tensor& slot_offset, const torch::Tensor& tile_start,
+                         const torch::Tensor& tile_slots, const torch::Tensor& slot_gaussian,
+                         const torch::Tensor& final_T, const torch::Tensor& n_contrib, const torch::Tensor& winner,
+                         const torch::Tensor& grad_rgb, const torch::Tensor& grad_alpha,
+                         const torch::Tensor& grad_depth) {
+  const int64_t total = tile_slots.numel(), pixels = width * height;
+  TORCH_CHECK(proj.numel() == n * raster::kProjStride && slot_offset.numel() == n + 1 &&
+                  tile_start.numel() == tiles + 1 && slot_gaussian.numel() == total && total <= kMaxInt32Count &&
+                  final_T.numel() == pixels && n_contrib.numel() == pixels && winner.numel() == pixels &&
+                  grad_rgb.numel() == 3 * pixels && grad_alpha.numel() == pixels && grad_depth.numel() == pixels,
+              "rasterize backward: the forward state does not belong to these ", n, " Gaussians and this ", width,
+              "x", height, " image");
+  for (const torch::Tensor* t : {&tile_start, &tile_slots, &slot_gaussian, &n_contrib, &winner})
+    TORCH_CHECK(t->scalar_type() == torch::kInt32 && t->is_contiguous() && t->device() == proj.device(),
+                "rasterize backward: the forward state must be contiguous int32 tensors on the means' device");
+  TORCH_CHECK(slot_offset.scalar_type() == torch::kInt64 && slot_offset.is_contiguous(),
+              "rasterize backward: slot_offset must be a contiguous int64 tensor");
+  if (!proj.device().is_cpu()) return;
+  const int32_t* start = tile_start.data_ptr<int32_t>();
+  TORCH_CHECK(start[0] == 0 && start[tiles] == total, "rasterize backward: tile_start does not span the tile slots");
+  for (int64_t t = 0; t < tiles; ++t)
+    TORCH_CHECK(start[t + 1] >= start[t], "rasterize backward: tile_start decreases at tile ", t);
+  TORCH_CHECK(first_outside(tile_slots.data_ptr<int32_t>(), total, total) < 0 &&
+                  first_outside(slot_gaussian.data_ptr<int32_t>(), total, n) < 0,
+              "rasterize backward: the tile lists name slots or Gaussians that do not exist");
 }
 
 // Returns gradients (means, opacities, scales, quats, covariances, sh, colors,
@@ -230,6 +319,8 @@ std::vector<torch::Tensor> raster_backward(
   check_float(grad_depth, "grad_depth", device);
   const int tiles_x = raster::tiles_along(cam.width), tiles_y = raster::tiles_along(cam.height);
   const int64_t total = tile_slots.numel();
+  check_forward_state(in.num, (int64_t)tiles_x * tiles_y, width, height, proj, slot_offset, tile_start, tile_slots,
+                      slot_gaussian, final_T, n_contrib, winner, grad_rgb, grad_alpha, grad_depth);
   torch::Tensor slot_grads = torch::zeros({total, raster::kSlotStride}, means.options());
   auto like = [](const OptTensor& t) { return t.has_value() ? torch::zeros_like(*t) : torch::Tensor(); };
   torch::Tensor g_means = torch::zeros_like(means), g_opacities = torch::zeros_like(opacities);

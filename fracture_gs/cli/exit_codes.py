@@ -9,6 +9,7 @@ from collections.abc import Callable
 
 def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
     """Call ``function`` and turn the project's input errors into exit statuses."""
+    from fracture_gs._backend import KernelBoundError
     from fracture_gs.pipeline.experiments.runner import RunFailed
     from fracture_gs.pipeline.experiments.sim_eval import EvaluationError
     from fracture_gs.io.device import DeviceError
@@ -25,7 +26,7 @@ def run_guarded(function: Callable[[], int | None], interrupted: str) -> int:
             DeviceError, FolderBusy, FolderTaken) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except RunFailed as exc:
+    except (RunFailed, KernelBoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except OSError as exc:  # writing a result failed (disk full, folder removed, ...)

@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from fracture_gs import bounds
+from fracture_gs._backend import KernelBoundError
 from fracture_gs.folders.sim_reader import SimulationError
 from fracture_gs.fracture.fpgo import EXCLUSIVE_RULES, INTERIOR_RULES, FPGOSettings
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
@@ -170,6 +171,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except OSError as exc:  # writing an image or video failed (disk full, folder removed, ...)
         print(f"error: {os_error_line(exc)}", file=sys.stderr)
+        return 1
+    except KernelBoundError as exc:  # e.g. more Gaussian-tile pairs than the rasterizer counts
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("interrupted; the images written so far are kept, the videos are not",

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from fracture_gs import bounds
+from fracture_gs._backend import KernelBoundError
 from fracture_gs.config.scene import SceneError, load_scene
 from fracture_gs.folders.sim_reader import OutputError
 from fracture_gs.io.device import DEVICE_CHOICES, DeviceError, resolve_device
@@ -76,7 +77,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (SceneError, InvalidInput, OutputError, DeviceError, FolderBusy, FolderTaken) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except SimulationBlowUp as exc:
+    except (SimulationBlowUp, KernelBoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     except (MemoryError, torch.OutOfMemoryError) as exc:

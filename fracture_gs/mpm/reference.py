@@ -22,7 +22,7 @@ WALL_CONDITIONS = {"none": 0, "slip": 1, "sticky": 2, "separate": 3}
 def _bspline(x: torch.Tensor, geometry: GridGeometry):
     """Base node (N,3), fraction f (N,3), weights w (N,3 nodes,3 axes), dw (same, per length)."""
     lower = torch.tensor(geometry.lower, device=x.device, dtype=x.dtype)
-    X = (x - lower) / geometry.dx
+    X = (x - lower) * (1.0 / geometry.dx)  # the kernels' grid coordinate (csrc/common/mpm_math.h)
     base = torch.floor(X - 0.5)
     f = X - base
     w = torch.stack([0.5 * (1.5 - f) ** 2, 0.75 - (f - 1.0) ** 2, 0.5 * (f - 0.5) ** 2], 1)

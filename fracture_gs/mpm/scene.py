@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from fracture_gs.config.scene import (Boundary, ContactSettings, Domain, GroundBoundary, MaterialConfig,
                                       ObjectConfig, PrimitiveConfig, SceneConfig, SceneError, TransformConfig)
+from fracture_gs.mpm.density import density_warnings
 from fracture_gs.mpm.ordering import spatial_order
 from fracture_gs.mpm.types import ParticleSet
 
@@ -352,4 +353,7 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                       contact=config.contact,
                       boundaries=list(config.boundaries), gravity=config.gravity,
                       cfl=config.cfl, seed=config.seed,
-                      warnings=tuple(overlap_warnings(config, objects)))
+                      warnings=tuple(overlap_warnings(config, objects) + density_warnings(
+                          [o.name for o in config.objects], [parts.x for parts in objects],
+                          [o.primitive is not None for o in config.objects], config.domain.lower,
+                          config.domain.dx, config.domain.grid)))

@@ -20,6 +20,7 @@ from typing import Any, TextIO
 import numpy as np
 import torch
 
+from fracture_gs._backend import KernelBoundError
 from fracture_gs.config.scene import SceneConfig, SceneError
 from fracture_gs.folders.run_record import RunRecord, model_change, model_identity, new_run_id
 from fracture_gs.folders.sim_reader import OutputError, load_frame, read_npz
@@ -340,12 +341,16 @@ def _run_locked(config: SceneConfig, built: BuiltScene, out_dir: str | Path, dev
         for frame in range(first, config.frames + 1):
             t_start = solver.state.time
             tick = time.perf_counter()
+            span = (f"frame {frame} (t = {t_start:.5g} .. {t_start + config.frame_dt:.5g} s)")
             try:
                 stats = solver.advance(config.frame_dt)
             except SimulationBlowUp as exc:
                 raise SimulationBlowUp(
-                    f"simulation blew up while computing frame {frame} "
-                    f"(t = {t_start:.5g} .. {t_start + config.frame_dt:.5g} s): {exc}; "
+                    f"simulation blew up while computing {span}: {exc}; "
+                    f"frames 0..{frame - 1} in {output.root} are valid") from exc
+            except KernelBoundError as exc:
+                raise SimulationBlowUp(
+                    f"a kernel refused its input while computing {span}: {exc}; "
                     f"frames 0..{frame - 1} in {output.root} are valid") from exc
             elapsed = time.perf_counter() - tick
             clamped += int(stats.clamped)
