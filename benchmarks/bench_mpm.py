@@ -4,8 +4,8 @@ Scene: two spheres already in contact and driven into each other, so the contact
 material update both really run. The step is bins + P2G + grid update + contact + boundaries +
 G2P with the material update; the particles are in simulate.py's order and the solver's periodic
 re-sort (every 50 substeps) is part of the timed steps. The compiled backend runs three times:
-NACC spheres without and with ``contact.fragments`` (crack opening inside objects), and brittle
-spheres with fragments, which crack where they press into each other. The JSON gives each and the
+NACC spheres and brittle spheres (which crack where they press into each other), each without and
+with ``contact.fragments`` (crack opening inside objects). The JSON gives each and the
 ratios ``fragment_cost`` (NACC with fragments / without) and ``brittle_cost`` (brittle with
 fragments / NACC with fragments), with the share of particles that were fractured and that read a
 split node while timed.
@@ -164,15 +164,15 @@ def main() -> None:
     device = torch.device(args.device)
     results, cost, brittle_cost = [], [], []
     for n in args.particles:
-        configs = [] if compiled_module() is None else [("cpp", "nacc", False, args.steps, args.repeats),
-                                                         ("cpp", "nacc", True, args.steps, args.repeats),
-                                                         ("cpp", "brittle", True, args.steps, args.repeats)]
+        configs = [] if compiled_module() is None else [("cpp", material, fragments, args.steps, args.repeats)
+                                                         for material in ("nacc", "brittle")
+                                                         for fragments in (False, True)]
         if not args.skip_reference:
             configs.append(("reference", "nacc", False, args.reference_steps, 1))
         rows = run_timed(n, args, device, configs)
         results += [row for row, _ in rows]
         compiled = {(row["material"], row["fragments"]): blocks for row, blocks in rows if row["backend"] == "cpp"}
-        if len(compiled) == 3:
+        if len(compiled) == 4:
             particles = rows[0][0]["particles"]
             cost.append(ratio_entry(particles, compiled[("nacc", True)], compiled[("nacc", False)]))
             brittle_cost.append(ratio_entry(particles, compiled[("brittle", True)], compiled[("nacc", True)]))
