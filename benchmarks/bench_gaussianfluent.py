@@ -3,7 +3,7 @@
 GaussianFluent (github.com/HB-pencil-zero/GaussianFluent) is not part of this repository: pass
 the path of your checkout and its ``mpm_solver_warp`` is imported from there at run time. Its
 code runs as written on Warp 1.7 (``pip install warp-lang==1.7.2``; later releases dropped the
-``warp.torch`` module and the ``owner=`` argument it uses), with three things done from the
+``warp.torch`` module and the ``owner=`` argument it uses), with these done from the
 outside, none of them edits of its files:
 
 * its loader ``load_initial_data_from_torch`` passes the device where ``clone`` is expected
@@ -33,7 +33,8 @@ threads one after another on one core; the JSON records our thread count.
 
 ``same_scene`` checks that the two runs are the same physical scene: after the same steps, each
 sphere's centre of mass displacement and mean velocity and the total momentum of our NACC solver
-(cracks not opening) and of GaussianFluent's.
+(cracks not opening) and of GaussianFluent's; and how many particles GaussianFluent's unguarded
+G2P gives a non-finite velocity in the scene's first step.
 
     OMP_NUM_THREADS=2 python benchmarks/bench_gaussianfluent.py --gaussianfluent PATH [--particles 50000 200000]
 """
@@ -212,6 +213,20 @@ class GaussianFluentNACC:
                 torch.from_numpy(self.sim.mpm_state.particle_v.numpy()).double())
 
 
+def unguarded_first_step(warp: ModuleType, module: ModuleType, paired: DtRecorder, grid: int) -> int:
+    """Particles whose velocity GaussianFluent's own G2P (without the guard) makes non-finite in the
+    first step of the scene. Only one step: the next P2G would write at NaN positions."""
+    guarded = module.g2p_flip
+    module.g2p_flip = sys.modules["mpm_utils"].g2p_flip
+    try:
+        solver = GaussianFluentNACC(warp, module, paired, grid)
+        solver.step(solver.stable_dt())
+        _, velocity = solver.positions_velocities()
+        return int((~torch.isfinite(velocity).all(1)).sum())
+    finally:
+        module.g2p_flip = guarded
+
+
 def motion(x: torch.Tensor, v: torch.Tensor, x0: torch.Tensor, mass: torch.Tensor, obj: torch.Tensor) -> dict:
     """Per sphere: centre of mass displacement and mean velocity; total momentum; particles with NaN."""
     mass = mass.double()
@@ -256,6 +271,7 @@ def run_size(n: int, args: argparse.Namespace, warp: ModuleType, module: ModuleT
         for _ in range(WARMUP_STEPS):
             solver.step(solver.stable_dt())
         ours.append(solver)
+    unguarded_nan = unguarded_first_step(warp, module, ours[0], args.grid)
     theirs = GaussianFluentNACC(warp, module, ours[0], args.grid)
     for _ in range(WARMUP_STEPS):
         theirs.step(theirs.stable_dt())
@@ -270,7 +286,7 @@ def run_size(n: int, args: argparse.Namespace, warp: ModuleType, module: ModuleT
         rows.append({"configuration": {"material": material, "fragments": fragments},
                      "particles": ours_row["particles"], "ours": ours_row, "gaussianfluent": their_row,
                      "gaussianfluent_over_ours": ratio_entry(ours_row["particles"], their_blocks, blocks)})
-    return rows, same_scene(ours[0], theirs)
+    return rows, {**same_scene(ours[0], theirs), "unguarded_g2p_nan_particles_first_step": unguarded_nan}
 
 
 def main(argv: list[str] | None = None) -> int:
