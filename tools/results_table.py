@@ -142,6 +142,34 @@ def mpm_block() -> list[str]:
     return lines
 
 
+def gaussianfluent_block() -> list[str]:
+    """``benchmarks/bench_gaussianfluent.py``'s JSON: both steps per configuration and size, their ratio,
+    and the two runs' motion after the same steps."""
+    result = load("bench_gaussianfluent.json")
+    lines = ["| material | cracks opening | particles | ours: ms per step | GaussianFluent (Warp CPU): ms per step | "
+             "GaussianFluent / ours (range of the rounds) | fastest block / fastest block |",
+             "|---|---|---|---|---|---|---|"]
+    for row in result["results"]:
+        ratio = row["gaussianfluent_over_ours"]
+        low, high = ratio["round_ratio_range"]
+        lines.append(f"| {row['configuration']['material']} | {'on' if row['configuration']['fragments'] else 'off'} | "
+                     f"{row['particles']:,} | {row['ours']['ms_per_step']:.1f} | "
+                     f"{row['gaussianfluent']['ms_per_step']:.0f} | × {ratio['ratio']:.1f} ({low:.1f}–{high:.1f}) | "
+                     f"× {ratio['fastest_block_ratio']:.1f} |")
+    lines += ["", "| particles | steps (simulated time) | sphere centre moved along x: ours / GaussianFluent | "
+              "sphere mean velocity along x: ours / GaussianFluent | total momentum along z | particles with NaN | "
+              "GaussianFluent unguarded, first step: particles with NaN |", "|---|---|---|---|---|---|---|"]
+    for scene in result["same_scene"]:
+        ours, theirs = scene["ours"], scene["gaussianfluent"]
+        moved = " / ".join(f"{run['spheres'][0]['centre_displacement'][0] * 1e3:.1f} mm" for run in (ours, theirs))
+        speed = " / ".join(f"{run['spheres'][0]['mean_velocity'][0]:.2f} m/s" for run in (ours, theirs))
+        lines.append(f"| {scene['particles']:,} | {scene['steps']} ({scene['simulated_time_s'] * 1e3:.2f} ms) | {moved} | "
+                     f"{speed} | {ours['momentum'][2]:.4g} / {theirs['momentum'][2]:.4g} kg m/s | "
+                     f"{ours['nan_particles']} / {theirs['nan_particles']} | "
+                     f"{scene['unguarded_g2p_nan_particles_first_step']} |")
+    return lines
+
+
 def pieces_blocks(*scenes: str) -> dict:
     """Generated blocks ``pieces-<scene>`` of a document: each scene's ``scene_pieces_<scene>.json`` as
     ``benchmarks/scene_pieces.py --markdown`` prints it."""
@@ -152,6 +180,7 @@ def pieces_blocks(*scenes: str) -> dict:
 BLOCKS = {
     "README.md": {"results": readme_block},
     "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
+                        "gaussianfluent": gaussianfluent_block,
                         "brittle-bar": bar_block, "brittle-bar-notched": lambda: bar_block(NOTCHED_BAR_FILE),
                         "mpm-step": mpm_block, **pieces_blocks("demo_default", "demo_quick")},
     "docs/materials.md": pieces_blocks("teapot_ground_porcelain", "teapot_table_porcelain",
