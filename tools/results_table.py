@@ -81,11 +81,9 @@ def readme_block() -> list[str]:
     bar_fine = max(run["grid"] for run in bar["runs"])
     bar_top = max((run for run in bar["runs"] if run["grid"] == bar_fine), key=lambda run: run["factor"])
     mpm = load("bench_mpm.json")
-    nacc = next(row for row in mpm["results"] if row["backend"] == "cpp" and row["material"] == "nacc"
-                and not row["fragments"])
-    low, high = nacc["particle_steps_per_s_range"]
-    fragment_cost = mpm["fragment_cost"][0]["ratio"]
-    brittle_cost = mpm["brittle_cost"][0]["ratio"]
+    largest = max(entry["particles"] for entry in mpm["brittle_cost"])
+    fragment_cost = next(entry["ratio"] for entry in mpm["fragment_cost"] if entry["particles"] == largest)
+    brittle_cost = next(entry["ratio"] for entry in mpm["brittle_cost"] if entry["particles"] == largest)
     sphere_cmd = f"`benchmarks/brittle_sphere.py --fracture-energy {strong['material']['fracture_energy']:g}`"
     return [
         "| result | value | printed by |",
@@ -108,14 +106,44 @@ def readme_block() -> list[str]:
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
         notched_bar_row(),
-        f"| Collision-MPM step, {nacc['particles']:,} NACC particles, grid {mpm['grid']}, "
-        f"{mpm['device']} ({mpm['threads']} threads): M particle-steps/s | "
-        f"{nacc['particle_steps_per_s'] / 1e6:.1f} ({low / 1e6:.1f}–{high / 1e6:.1f}) | `benchmarks/bench_mpm.py` |",
-        f"| step time with cracks opening (`fragments: true`) / without | × {fragment_cost:.2f} | "
-        "`benchmarks/bench_mpm.py` |",
-        f"| step time, brittle / NACC material (both with cracks opening) | × {brittle_cost:.2f} | "
-        "`benchmarks/bench_mpm.py` |",
+        *mpm_rows(mpm),
+        f"| step time with cracks opening (`fragments: true`) / without, NACC, {largest:,} particles | "
+        f"× {fragment_cost:.2f} | `benchmarks/bench_mpm.py` |",
+        f"| step time, brittle / NACC material (both with cracks opening), {largest:,} particles | "
+        f"× {brittle_cost:.2f} | `benchmarks/bench_mpm.py` |",
     ]
+
+
+def mpm_rows(mpm: dict) -> list[str]:
+    """One README row per material and crack opening: the compiled step's speed at each particle count."""
+    rows = []
+    for material in ("nacc", "brittle"):
+        for fragments in (False, True):
+            runs = sorted((row for row in mpm["results"] if row["backend"] == "cpp" and row["material"] == material
+                           and row["fragments"] == fragments), key=lambda row: row["particles"])
+            if not runs:
+                continue
+            counts = " / ".join(f"{row['particles']:,}" for row in runs)
+            speeds = " / ".join(f"{row['particle_steps_per_s'] / 1e6:.1f}" for row in runs)
+            rows.append(f"| Collision-MPM step, {material.replace('nacc', 'NACC')}, cracks "
+                        f"{'opening' if fragments else 'not opening'}, grid {mpm['grid']}, {mpm['device']} "
+                        f"({mpm['threads']} threads): M particle-steps/s at {counts} particles | {speeds} | "
+                        "`benchmarks/bench_mpm.py` |")
+    return rows
+
+
+def profile_block() -> list[str]:
+    """``benchmarks/profile_step.py``'s JSON: milliseconds per step of each op, per configuration."""
+    profile = load("profile_step.json")
+    widest = max(profile["results"], key=lambda row: len(row["ops_ms_per_step"]))
+    ops = list(widest["ops_ms_per_step"])   # the order the step calls them, then other
+    lines = ["| material | cracks opening | particles | ms per step | " + " | ".join(ops) + " |",
+             "|---|---|---|---|" + "---|" * len(ops)]
+    for row in profile["results"]:
+        cells = [f"{row['ops_ms_per_step'][op]:.1f}" if op in row["ops_ms_per_step"] else "—" for op in ops]
+        lines.append(f"| {row['material']} | {'on' if row['fragments'] else 'off'} | {row['particles']:,} | "
+                     f"{row['ms_per_step']:.1f} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def bar_block(name: str = "brittle_bar.json") -> list[str]:
@@ -182,7 +210,7 @@ BLOCKS = {
     "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
                         "gaussianfluent": gaussianfluent_block,
                         "brittle-bar": bar_block, "brittle-bar-notched": lambda: bar_block(NOTCHED_BAR_FILE),
-                        "mpm-step": mpm_block, **pieces_blocks("demo_default", "demo_quick")},
+                        "mpm-step": mpm_block, "mpm-profile": profile_block, **pieces_blocks("demo_default", "demo_quick")},
     "docs/materials.md": pieces_blocks("teapot_ground_porcelain", "teapot_table_porcelain",
                                        "bowl_teapot_porcelain", "ficus_table_porcelain"),
 }
