@@ -35,10 +35,15 @@ STEP_OPS = ("bin_particles", "p2g", "fragment_reference", "fragment_partition", 
             "grid_update", "collision", "boundaries", "g2p", "fragment_clear")
 
 
+def synchronizer(device: torch.device) -> Callable[[], None]:
+    """What waits for the device's queued work before a clock is read (nothing on the CPU)."""
+    return torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+
+
 @contextlib.contextmanager
 def timed_ops(device: torch.device, seconds: dict[str, float]) -> Iterator[None]:
     """Within the block, every call of a ``STEP_OPS`` function adds its wall time to ``seconds[name]``."""
-    sync: Callable[[], None] = torch.cuda.synchronize if device.type == "cuda" else (lambda: None)
+    sync = synchronizer(device)
     originals = {name: getattr(ops, name) for name in STEP_OPS}
 
     def timed(name: str, fn: Callable) -> Callable:
@@ -65,7 +70,7 @@ def timed_ops(device: torch.device, seconds: dict[str, float]) -> Iterator[None]
 def profile(solver: CollisionMPM, steps: int) -> dict:
     """Milliseconds per step of each op over ``steps`` steps of ``solver``, and the rest as ``other``."""
     seconds: dict[str, float] = defaultdict(float)
-    sync = torch.cuda.synchronize if solver.device.type == "cuda" else (lambda: None)
+    sync = synchronizer(solver.device)
     with timed_ops(solver.device, seconds):
         sync()
         start = time.perf_counter()

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from fracture_gs.config.scene import Domain, ObjectConfig
+
 DESIGN_PARTICLES_PER_CELL = 8
 # Above this many particles per cell (four per cell along each axis) simulate.py warns.
 MAX_PARTICLES_PER_CELL = 64
@@ -53,14 +55,13 @@ def density_warning(name: str, per_cell: float, grid: int, is_primitive: bool) -
             f"{grid_for_density(grid, per_cell, MAX_PARTICLES_PER_CELL)}) or {fewer}")
 
 
-def density_warnings(names: Sequence[str], positions: Sequence[np.ndarray], primitive: Sequence[bool],
-                     lower: Sequence[float], dx: float, grid: int) -> list[str]:
-    """One warning line per object (world-frame ``positions``) denser than
-    ``MAX_PARTICLES_PER_CELL`` on the grid of cell ``dx`` (``grid`` cells along x) whose lower
-    corner is ``lower``."""
+def density_warnings(objects: Sequence[ObjectConfig], positions: Sequence[np.ndarray], domain: Domain) -> list[str]:
+    """One warning line per object (``positions``: its world-frame particles) denser than
+    ``MAX_PARTICLES_PER_CELL`` on the cells of ``domain``."""
     lines = []
-    for name, x, is_primitive in zip(names, positions, primitive):
-        line = density_warning(name, particles_per_cell(x, lower, dx), grid, is_primitive)
+    for obj, x in zip(objects, positions):
+        line = density_warning(obj.name, particles_per_cell(x, domain.lower, domain.dx), domain.grid,
+                               obj.primitive is not None)
         if line is not None:
             lines.append(line)
     return lines

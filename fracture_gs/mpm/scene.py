@@ -354,6 +354,4 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                       boundaries=list(config.boundaries), gravity=config.gravity,
                       cfl=config.cfl, seed=config.seed,
                       warnings=tuple(overlap_warnings(config, objects) + density_warnings(
-                          [o.name for o in config.objects], [parts.x for parts in objects],
-                          [o.primitive is not None for o in config.objects], config.domain.lower,
-                          config.domain.dx, config.domain.grid)))
+                          config.objects, [parts.x for parts in objects], config.domain)))
