@@ -9,8 +9,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+
+from fracture_gs.io.sim_layout import SimLayout
+from fracture_gs.metrics.shape import rigid_fit_residual
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -35,6 +39,13 @@ def test_tiny_demo_runs_end_to_end_and_resumes(tmp_path: Path) -> None:
     assert "teapot_table_mls" in metrics["runs"][2]["sim"]
     scene = (out / "scenes" / "teapot_table_mls.yaml").read_text()
     assert "mode: mls" in scene
+    # the table is rigid: it keeps its shape in every frame and stands on the ground
+    layout = SimLayout(out / "sims" / "teapot_table")
+    table = np.load(layout.particles_path)["obj_id"] == 1
+    rest = np.load(layout.frame_path(0))["x"][table]
+    residuals = [rigid_fit_residual(rest, np.load(layout.frame_path(frame))["x"][table])
+                 for frame in layout.frames_on_disk()]
+    assert len(residuals) == 9 and max(residuals) <= 0.01, residuals
     assert "ours (collision + FPGO)" in first.stdout and "paper: ours" in first.stdout
     assert str(out / "evaluation" / "report.md") in first.stdout
     log = json.loads((out / "stages.json").read_text())

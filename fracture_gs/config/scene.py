@@ -231,6 +231,7 @@ class ObjectConfig:
     velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)
     angular_velocity: tuple[float, float, float] = (0.0, 0.0, 0.0)   # rad/s, about the centre of mass
     velocity_gradient: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),) * 3   # 1/s
+    rigid: bool = False   # moves as one rigid body (fracture_gs.mpm.rigid); elastic materials only
 
     @property
     def particles_file(self) -> Path | None:
@@ -302,6 +303,8 @@ def _object_dict(obj: ObjectConfig) -> dict[str, Any]:
     out["velocity"] = list(obj.velocity)
     out["angular_velocity"] = list(obj.angular_velocity)
     out["velocity_gradient"] = [list(row) for row in obj.velocity_gradient]
+    if obj.rigid:   # written only when set, so scenes saved before the key existed still compare equal
+        out["rigid"] = True
     out["materials"] = [{"part": m.part, **m.material.to_yaml(),
                          **({"interior_colour": list(m.interior_colour)} if m.interior_colour else {})}
                         for m in obj.materials]
@@ -480,7 +483,7 @@ def _parse_boundaries(items: list[Any], domain: Domain) -> tuple[Boundary, ...]:
 def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> ObjectConfig:
     data = _mapping(value, path)
     _check_keys(data, path, ("name", "model", "primitive", "transform", "placement", "velocity",
-                             "angular_velocity", "velocity_gradient", "materials"),
+                             "angular_velocity", "velocity_gradient", "rigid", "materials"),
                 required=("materials",))
     name = _name(data["name"], f"{path}.name") if "name" in data else f"object{index}"
     has_model, has_primitive = "model" in data, "primitive" in data
@@ -508,9 +511,16 @@ def _parse_object(value: Any, path: str, index: int, base_dir: Path | None) -> O
                              f"part {mat.part} already has a material "
                              f"(materials[{parts[mat.part]}])")
         parts[mat.part] = j
+    rigid = _boolean(data, "rigid", path, False)
+    if rigid:
+        for j, mat in enumerate(materials):
+            if mat.model != "elastic":
+                raise SceneError(f"{path}.materials[{j}].model",
+                                 f"a rigid object neither deforms nor breaks: give its parts the elastic model "
+                                 f"(its density sets the mass), not {mat.model!r}")
     return ObjectConfig(name=name, materials=materials, model=model, primitive=primitive,
                         transform=transform, velocity=velocity, angular_velocity=angular_velocity,
-                        velocity_gradient=velocity_gradient)
+                        velocity_gradient=velocity_gradient, rigid=rigid)
 
 
 def _placed(obj: ObjectConfig, raw: Any, path: str, ground: float | None) -> ObjectConfig:

@@ -66,6 +66,10 @@ class ExternalImpulse:
         change = velocity.index_select(0, nodes).double() - before
         self.total += (mass[:, None] * change).sum(0)
 
+    def add(self, impulse: torch.Tensor) -> None:
+        """Adds an impulse given outside the grid's boundary pass (a rigid body's ground contact)."""
+        self.total += impulse.to(self.total)
+
     def _boundary_nodes(self, touched: torch.Tensor) -> torch.Tensor | None:
         """Storage indices of the nodes of the touched blocks that hold boundary nodes."""
         touched = touched.long()

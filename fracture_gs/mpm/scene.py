@@ -59,7 +59,13 @@ class BuiltScene:
     gravity: tuple[float, float, float]
     cfl: float
     seed: int = 0                         # the scene's seed (brittle strengths hash it with the row)
+    rigid_objects: tuple[int, ...] = ()   # indices of the objects that move as rigid bodies
     warnings: tuple[str, ...] = ()        # legal but suspicious set-ups (overlapping objects)
+
+    @property
+    def step_rows(self) -> list[int]:
+        """Material rows whose wave speed limits the time step: those of the deforming objects."""
+        return [row for row, (obj, _) in enumerate(self.material_keys) if obj not in self.rigid_objects]
 
 
 # ----------------------------------------------------------------------------- geometry
@@ -353,5 +359,6 @@ def build_scene(config: SceneConfig, device: torch.device | None = None) -> Buil
                       contact=config.contact,
                       boundaries=list(config.boundaries), gravity=config.gravity,
                       cfl=config.cfl, seed=config.seed,
+                      rigid_objects=tuple(i for i, o in enumerate(config.objects) if o.rigid),
                       warnings=tuple(overlap_warnings(config, objects) + density_warnings(
                           config.objects, [parts.x for parts in objects], config.domain)))

@@ -21,6 +21,7 @@ from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.materials import COLUMN, MaterialTable, SubstepView, elastic_energy
 from fracture_gs.mpm.ordering import spatial_order
+from fracture_gs.mpm.rigid import RigidBodies
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
 
@@ -47,7 +48,8 @@ class CollisionMPM:
                  contact: ContactSettings | None = None, boundaries: Sequence = (),
                  gravity: Sequence[float] = (0.0, 0.0, -9.8), cfl: float = 0.3,
                  object_names: Sequence[str] | None = None, backend: str = "auto",
-                 device: torch.device | None = None, reorder_every: int = 50, seed: int = 0) -> None:
+                 device: torch.device | None = None, reorder_every: int = 50, seed: int = 0,
+                 rigid_objects: Sequence[int] = ()) -> None:
         self.device = device if device is not None else particles.x.device
         self.particles = particles.to(self.device)
         self.input_particles = self.particles  # the constructor's order, kept for checkpoints
@@ -71,9 +73,17 @@ class CollisionMPM:
         table = MaterialTable(self.materials, cell_size=domain.dx)
         self.table = table
         self.material_table = table.table(self.device)
-        self.max_wave_speed = float(table.max_wave_speed)
         if int(self.particles.material_id.max()) >= len(self.materials) or int(self.particles.material_id.min()) < 0:
             raise ValueError("ParticleSet.material_id refers to a material that does not exist")
+        if any(not 0 <= int(i) < self.n_objects for i in rigid_objects):
+            raise ValueError(f"rigid_objects {list(rigid_objects)} name objects outside 0..{self.n_objects - 1}")
+        # Rigid objects (fracture_gs.mpm.rigid) move as one body; their wave speed sets no time step.
+        self.rigid = RigidBodies(rigid_objects, self.particles.x, self.particles.mass, self.particles.obj_id,
+                                 domain.dx, self.ground_height, self.ground_friction)
+        rigid_ids = torch.tensor(self.rigid.objects, dtype=self.particles.obj_id.dtype, device=self.device)
+        deforming = ~torch.isin(self.particles.obj_id, rigid_ids)
+        rows = torch.unique(self.particles.material_id[deforming]).tolist()
+        self.max_wave_speed = max((float(self.materials[row].wave_speed) for row in rows), default=0.0)
 
         collision_mode = self.contact.mode == "collision"
         self.n_grids = self.n_objects if collision_mode else 1
@@ -168,8 +178,13 @@ class CollisionMPM:
         return (self.state.alpha >= threshold).contiguous()
 
     def stable_dt(self) -> float:
-        """CFL time step: cfl * dx / (c_max + |v|_max)."""
-        return self.cfl * self.geometry.dx / (self.max_wave_speed + self.max_speed)
+        """CFL time step: cfl * dx / (c_max + |v|_max), c_max over the deforming objects' materials.
+        A scene of resting rigid bodies alone has neither speed: its step is the time gravity takes to
+        bring a body to sqrt(|g| dx) (inf without gravity)."""
+        speed = self.max_wave_speed + self.max_speed
+        if speed <= 0.0:
+            speed = math.sqrt(math.hypot(*self.gravity) * self.geometry.dx)
+        return self.cfl * self.geometry.dx / speed if speed > 0.0 else math.inf
 
     def step(self, dt: float) -> int:
         """Advance one substep of length ``dt``; returns the number of clamped particles."""
@@ -203,6 +218,10 @@ class CollisionMPM:
             ops.fragment_clear(field_bins.touched[len(bins.touched):], fields, g, backend)
         self._split_particle = fragments.split_particle if fragments is not None else None
         self._check(stats, v, dt)
+        rigid_speed = 0.0
+        if len(self.rigid):
+            rigid_speed, ground_impulse = self.rigid.project(x, v, C, F_E, stress, self.input_index, dt)
+            self.external_impulse.add(ground_impulse)
         if dissipated is not None:
             self._add_dissipated(dissipated)
         for cls, _ in self._models:
@@ -212,7 +231,7 @@ class CollisionMPM:
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
         self.last_bins = bins
-        self.max_speed = stats.max_speed
+        self.max_speed = max(stats.max_speed, rigid_speed)
         if self.reorder_every and self.state.step % self.reorder_every == 0:
             self.reorder()
         return stats.clamped
@@ -272,6 +291,7 @@ class CollisionMPM:
         self._model_particles = {}
         self._model_cache = {}
         self.input_index = torch.index_select(self.input_index, 0, order)
+        self.rigid.reordered()
 
     def state_in_input_order(self) -> SimState:
         """The state with rows in the order of the ParticleSet given to the constructor."""
@@ -392,6 +412,7 @@ class CollisionMPM:
         out["max_speed"] = np.float64(self.max_speed)
         out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
         out["dissipated_energy"] = self.dissipated_energy.cpu().numpy()
+        out.update({key: value.cpu().numpy() for key, value in self.rigid.state_dict().items()})
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -416,6 +437,12 @@ class CollisionMPM:
         self._model_cache = {}
         self.grid_id = self._grid_ids(self.particles)
         self.input_index = order
+        self.rigid.reordered()
+        if len(self.rigid):
+            if "rigid_centre" not in data or "rigid_rotation" not in data:
+                raise KeyError("checkpoint has no 'rigid_centre' / 'rigid_rotation' (the scene has rigid objects)")
+            self.rigid.load_state_dict(torch.as_tensor(np.asarray(data["rigid_centre"]), device=self.device),
+                                       torch.as_tensor(np.asarray(data["rigid_rotation"]), device=self.device))
         self.stress = tensors.pop("stress").float()
         material_state = tensors["material_state"].float()
         width = self.table.state_width

@@ -1,8 +1,8 @@
 """How many substeps a scene will take, estimated before it runs.
 
 The solver's substep is the CFL step dt = cfl Δx / (c_max + |v|_max) (``CollisionMPM.stable_dt``),
-c_max the largest P-wave speed of the scene's materials and |v|_max the largest particle speed. At
-the start of a run both are known, so the substeps of the scene's ``frames × frame_dt`` can be
+c_max the largest P-wave speed of the deforming objects' materials (a rigid object sets none) and
+|v|_max the largest particle speed. At the start of a run both are known, so the substeps of the scene's ``frames × frame_dt`` can be
 counted before the first step: a scene that would take more than ``bounds.SUBSTEPS_MAX`` of them
 (a light, stiff material whose wave speed makes the step nanoseconds long, or days of simulated
 time) is refused with one line instead of running for ever. Gravity and impacts only make the
@@ -36,9 +36,9 @@ class SubstepEstimate:
 
 def estimate_substeps(config: SceneConfig, built: BuiltScene) -> SubstepEstimate:
     """The first CFL step of the built scene and how many such steps its frames take."""
-    wave_speed = max(material.wave_speed for material in built.materials)
+    wave_speed = max((built.materials[row].wave_speed for row in built.step_rows), default=0.0)
     speed = float(built.particles.v.double().norm(dim=1).max())
-    dt = config.cfl * config.domain.dx / (wave_speed + speed)
+    dt = config.cfl * config.domain.dx / max(wave_speed + speed, 1e-12)
     return SubstepEstimate(dt=dt, wave_speed=wave_speed, speed=speed,
                            substeps=config.frames * config.frame_dt / dt,
                            per_frame=config.frame_dt / dt)
@@ -57,7 +57,7 @@ def check_substeps(config: SceneConfig, built: BuiltScene) -> None:
         raise SceneError("frames", f"{config.frames} frames is too long a run: {cost}; simulate "
                                    "fewer frames")
     if estimate.wave_speed >= estimate.speed:
-        row = max(range(len(built.materials)), key=lambda r: built.materials[r].wave_speed)
+        row = max(built.step_rows, key=lambda r: built.materials[r].wave_speed)
         material = built.materials[row]
         raise SceneError(_material_path(config, *built.material_keys[row]),
                          f"E {material.E:g} Pa, nu {material.nu:g} and density {material.density:g} "

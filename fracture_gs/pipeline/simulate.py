@@ -84,7 +84,8 @@ def create_solver(built: BuiltScene, device: torch.device, backend: str) -> Any:
 
     return CollisionMPM(built.particles, built.materials, built.domain, contact=built.contact,
                         boundaries=built.boundaries, gravity=built.gravity, cfl=built.cfl,
-                        object_names=built.object_names, backend=backend, device=device, seed=built.seed)
+                        object_names=built.object_names, backend=backend, device=device, seed=built.seed,
+                        rigid_objects=built.rigid_objects)
 
 
 def first_difference(a: Any, b: Any, path: str = "") -> str | None:
