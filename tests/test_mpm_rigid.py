@@ -14,7 +14,7 @@ from fracture_gs.materials import ElasticMaterial
 from fracture_gs.metrics.shape import rigid_fit_residual
 from fracture_gs.mpm.rigid import RigidBodies, axial, rotation_exp, skew
 from fracture_gs.mpm.solver import CollisionMPM
-from fracture_gs.mpm.types import ContactSettings, Domain, GroundBoundary
+from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary
 from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
 
 pytestmark = pytest.mark.extension  # tests/conftest.py: skipped without _C, failed in CI
@@ -169,6 +169,32 @@ def test_rigid_bar_rests_on_the_ground():
     assert abs(x[:, 2].min() - 0.1) < 0.5 * solver.geometry.dx
     assert np.abs(v).max() < 0.05
     assert rigid_fit_residual(rest, x) < 1e-5
+
+
+@pytest.mark.parametrize("walls", ["slip", "sticky"])
+def test_rigid_box_thrown_at_a_wall_stops_there_and_balances_momentum(walls):
+    domain = Domain((0, 0, 0), (1, 1, 1), 32)
+    spacing = domain.dx / 2
+    box = lattice_box((0.7, 0.5, 0.5), (0.2, 0.15, 0.1), spacing)
+    solver = CollisionMPM(particle_set([LatticeBody(box, (5.0, 1.0, 0.0), 0, spacing)], [STEEL.density]), [STEEL],
+                          domain, gravity=(0.0, 0.0, 0.0), boundaries=[BoxBoundary(walls)], rigid_objects=[0])
+    rest, _ = body_state(solver, 0)
+    p0 = np.asarray(solver.diagnostics()["momentum"])
+    solver.advance(0.1)   # reaches the wall (0.1 m away) after 0.02 s
+    x, v = body_state(solver, 0)
+    diagnostics = solver.diagnostics()
+    balance = np.linalg.norm(np.asarray(diagnostics["momentum"]) - p0 - np.asarray(diagnostics["external_impulse"]))
+    wall = solver.geometry.clamp_bounds()[1][0]
+    print(f"[rigid box at a {walls} wall] front {x[:, 0].max():.4f} (wall {wall:.4f}), velocity {v.mean(0).round(3)}, "
+          f"balance {balance / np.linalg.norm(p0):.2e}")
+    assert x[:, 0].max() <= wall + 1e-4
+    assert v[:, 0].mean() <= 1e-3                    # stopped at the wall, not pushed into it
+    assert balance <= 1e-5 * np.linalg.norm(p0)
+    assert rigid_fit_residual(rest, x) < 1e-5
+    if walls == "sticky":
+        assert abs(v[:, 1].mean()) < 1e-3           # no sliding along a sticky wall
+    else:
+        assert v[:, 1].mean() > 0.5                  # sliding on along a slip wall
 
 
 def test_rigid_body_resumes_bit_identically():

@@ -101,7 +101,7 @@ def readme_block() -> list[str]:
                          "trained porcelain teapot thrown onto the floor"),
         scene_pieces_row("scene_pieces_teapot_table_porcelain.json",
                          "the same teapot thrown onto a trained table at 10 m/s"),
-        scene_pieces_row("scene_pieces_demo_default.json", "`demo.py`: its porcelain teapot thrown onto its table"),
+        scene_pieces_row("scene_pieces_demo_default.json", "`demo.py`: its porcelain teapot (softened 300 times) thrown onto its rigid table"),
         scene_pieces_row("scene_pieces_demo_quick.json", "`demo.py --quick`: the same"),
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",

@@ -19,16 +19,20 @@ velocities are projected onto a rigid motion of the body:
 The projection is the orthogonal one in the APIC kinetic energy's inner product, so it never adds
 kinetic energy.
 
-The grid's boundary pass stops only the nodes under the few particles that touch the ground, which
-a rigid body shares out over all its mass: alone it would let a table sink slowly into the floor.
-So the ground is also a constraint on the body's motion: every particle within a cell of the ground
-must end the substep above it, z_p + Δt (V + ω × r_p)_z ≥ h (speculative contact: no impulse
-before the gap closes, none that pulls), or climb back by a fifth of its depth per substep where it
-already lies below. The smallest change of (V, ω) in the body's mass metric that meets all of
-them is a least-distance problem, solved exactly through non-negative least squares; Coulomb friction then takes up to μ times the normal impulse from
-the body's sliding speed. The impulse counts in the solver's external impulse J. The body's material keys set its mass (density) only: its wave speed does not
-limit the time step (``CollisionMPM.stable_dt``). Centre and rotation are part of the solver's
-checkpoint, so a resumed run is bit-identical.
+The grid's boundary pass stops only the nodes under the few particles that touch the ground or a
+wall, which a rigid body shares out over all its mass: alone it would let a table sink slowly into
+the floor. So the ground and the planes particles are clamped to (the walls' inner faces) are also
+constraints on the body's motion: every particle within a cell of a plane n·x = h must end the
+substep on its side, n·(x_p + Δt (V + ω × r_p)) ≥ h (speculative contact: no impulse before the
+gap closes, none that pulls), or climb back by a fifth of its depth per substep where it already
+lies beyond. The smallest change of (V, ω) in the body's mass metric that meets all of them is a
+least-distance problem, solved exactly through non-negative least squares; Coulomb friction then
+takes up to μ times each plane's normal impulse from the body's sliding speed along it (sticky
+walls: all of it). The impulse counts in the solver's external impulse J.
+
+The body's material keys set its mass (density) only: its wave speed does not limit the time step
+(``CollisionMPM.stable_dt``). Centre and rotation are part of the solver's checkpoint, so a
+resumed run is bit-identical.
 """
 from __future__ import annotations
 
@@ -40,8 +44,18 @@ import numpy as np
 import torch
 from scipy.optimize import nnls
 
-GROUND_MARGIN_CELLS = 1.0   # particles this close to the ground are contact candidates
-GROUND_RECOVERY = 0.2       # share of a penetration undone per substep
+CONTACT_MARGIN_CELLS = 1.0  # particles this close to a plane are contact candidates
+RECOVERY = 0.2              # share of a penetration undone per substep
+
+
+@dataclass(frozen=True)
+class ContactPlane:
+    """A plane a rigid body stays on one side of: n · x ≥ offset, with Coulomb friction μ (inf: no
+    sliding at all)."""
+
+    normal: tuple[float, float, float]
+    offset: float
+    friction: float = 0.0
 
 
 def axial(matrices: torch.Tensor) -> torch.Tensor:
@@ -90,13 +104,12 @@ class RigidBodies:
     """The scene's rigid objects and the projection that keeps each one rigid after G2P."""
 
     def __init__(self, objects: Sequence[int], x: torch.Tensor, mass: torch.Tensor, obj_id: torch.Tensor,
-                 dx: float, ground_height: float | None = None, ground_friction: float = 0.0) -> None:
+                 dx: float, planes: Sequence[ContactPlane] = ()) -> None:
         """``x``, ``mass`` and ``obj_id``: the solver's input particles (constructor order); the
-        ground plane z = ``ground_height`` (None: none) with its friction coefficient."""
+        planes the bodies stay on one side of (the ground, the walls' inner faces)."""
         self.affine = 0.25 * dx * dx   # D = Δx²/4 of the quadratic kernel's APIC transfer
         self.dx = float(dx)
-        self.ground_height = ground_height
-        self.ground_friction = float(ground_friction)
+        self.planes = list(planes)
         self.bodies: list[RigidBody] = []
         eye = torch.eye(3, dtype=torch.float64, device=x.device)
         for index in sorted(set(int(i) for i in objects)):
@@ -139,9 +152,9 @@ class RigidBodies:
                 input_index: torch.Tensor, dt: float) -> tuple[float, torch.Tensor]:
         """Replace the rigid particles' G2P results (in place, current order) by their body's rigid
         motion. Returns the largest rigid particle speed (0 without bodies) and the (3,) float64
-        impulse the ground gave the bodies."""
+        impulse the contact planes gave the bodies."""
         fastest = 0.0
-        ground_impulse = np.zeros(3)
+        plane_impulse = np.zeros(3)
         for body, rows in zip(self.bodies, self.current_rows(input_index)):
             velocity = torch.index_select(v, 0, rows).double()
             affine = torch.index_select(C, 0, rows).double()
@@ -153,9 +166,9 @@ class RigidBodies:
             linear, angular = sums[:3] / body.total_mass, sums[3:]
             inertia = body.rotation @ body.inertia @ body.rotation.T
             spin = np.linalg.solve(inertia, angular)
-            if self.ground_height is not None:
-                constrained, spin = self._ground_contact(body, arm, linear, spin, inertia, dt)
-                ground_impulse += body.total_mass * (constrained - linear)
+            if self.planes:
+                constrained, spin = self._plane_contact(body, arm, linear, spin, inertia, dt)
+                plane_impulse += body.total_mass * (constrained - linear)
                 angular = inertia @ spin
                 linear = constrained
             body.centre = body.centre + dt * linear
@@ -172,49 +185,57 @@ class RigidBodies:
             F_E.index_copy_(0, rows, rotation.to(F_E.dtype).expand(len(rows), 3, 3).contiguous())
             stress.index_fill_(0, rows, 0.0)
             fastest = max(fastest, float(torch.linalg.vector_norm(new_velocity, dim=1).max()))
-        return fastest, torch.as_tensor(ground_impulse, device=x.device)
+        return fastest, torch.as_tensor(plane_impulse, device=x.device)
 
-    def _ground_contact(self, body: RigidBody, arm: torch.Tensor, linear: np.ndarray, spin: np.ndarray,
-                        inertia: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """The body's velocity and spin after the ground constraint (module docstring); ``arm``: the
+    def _plane_contact(self, body: RigidBody, arm: torch.Tensor, linear: np.ndarray, spin: np.ndarray,
+                       inertia: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The body's velocity and spin after the plane constraints (module docstring); ``arm``: the
         particles' offsets from the centre at the substep's start."""
-        assert self.ground_height is not None
-        height = float(body.centre[2]) + arm[:, 2]
-        near = torch.nonzero(height < self.ground_height + GROUND_MARGIN_CELLS * self.dx).flatten()
-        if len(near) == 0:
+        rows, bounds, owners = [], [], []
+        for k, plane in enumerate(self.planes):
+            normal = np.asarray(plane.normal, dtype=np.float64)
+            distance = arm @ torch.as_tensor(normal, device=arm.device) + (float(normal @ body.centre) - plane.offset)
+            near = torch.nonzero(distance < CONTACT_MARGIN_CELLS * self.dx).flatten()
+            if len(near) == 0:
+                continue
+            r = arm.index_select(0, near).cpu().numpy()
+            gap = distance.index_select(0, near).cpu().numpy()
+            rows.append(np.concatenate([np.broadcast_to(normal, r.shape), np.cross(r, normal)], axis=1))
+            bounds.append(np.where(gap >= 0.0, -gap / dt, -RECOVERY * gap / dt))
+            owners.append(np.full(len(r), k))
+        if not rows:
             return linear, spin
-        r = arm.index_select(0, near).cpu().numpy()
-        gap = height.index_select(0, near).cpu().numpy() - self.ground_height
-        # constraint rows J u >= b with u = (V, ω), n = z: J = (n, r × n), b = -gap/dt or recovery
-        rows = np.zeros((len(r), 6))
-        rows[:, 2] = 1.0
-        rows[:, 3], rows[:, 4] = r[:, 1], -r[:, 0]
-        bound = np.where(gap >= 0.0, -gap / dt, -GROUND_RECOVERY * gap / dt)
+        jacobian, bound, owner = np.concatenate(rows), np.concatenate(bounds), np.concatenate(owners)
         free = np.concatenate([linear, spin])
-        excess = bound - rows @ free
+        excess = bound - jacobian @ free
         if float(excess.max()) <= 0.0:
             return linear, spin
         # least-distance problem min |y| s.t. G y >= h with y = M^(1/2) (u - u_free), G = J M^(-1/2),
-        # solved through non-negative least squares (Lawson and Hanson, ch. 23)
+        # solved through non-negative least squares (Lawson and Hanson, ch. 23); the constraints'
+        # impulses are λ = z / (1 - h·z)
         mass = body.total_mass
         values, vectors = np.linalg.eigh(inertia)
         root_inverse = np.zeros((6, 6))
         root_inverse[:3, :3] = np.eye(3) / math.sqrt(mass)
         root_inverse[3:, 3:] = (vectors / np.sqrt(values)) @ vectors.T
-        metric_rows = rows @ root_inverse
-        system = np.vstack([metric_rows.T, excess[None, :]])
+        system = np.vstack([(jacobian @ root_inverse).T, excess[None, :]])
         target = np.zeros(7)
         target[6] = 1.0
         weights, _ = nnls(system, target)
         residual = system @ weights - target
-        if abs(residual[6]) < 1e-12:    # infeasible: cannot happen for a plane below the body
+        if abs(residual[6]) < 1e-12:    # infeasible: the body is wedged between planes
             return linear, spin
         velocity = free + root_inverse @ (-residual[:6] / residual[6])
-        normal = mass * float(velocity[2] - free[2])   # every constraint pushes along +z
-        sliding = velocity[:2]
-        speed = float(np.hypot(*sliding))
-        if speed > 0.0 and normal > 0.0:
-            velocity[:2] *= max(0.0, 1.0 - self.ground_friction * normal / mass / speed)
+        impulse = weights / -residual[6]
+        for k, plane in enumerate(self.planes):
+            normal_impulse = float(impulse[owner == k].sum())
+            if normal_impulse <= 0.0:
+                continue
+            normal = np.asarray(plane.normal, dtype=np.float64)
+            sliding = velocity[:3] - (velocity[:3] @ normal) * normal
+            speed = float(np.linalg.norm(sliding))
+            if speed > 0.0:
+                velocity[:3] -= sliding * min(1.0, plane.friction * normal_impulse / mass / speed)
         return velocity[:3], velocity[3:]
 
     def state_dict(self) -> dict[str, torch.Tensor]:

@@ -21,7 +21,7 @@ from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.materials import COLUMN, MaterialTable, SubstepView, elastic_energy
 from fracture_gs.mpm.ordering import spatial_order
-from fracture_gs.mpm.rigid import RigidBodies
+from fracture_gs.mpm.rigid import ContactPlane, RigidBodies
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
 
@@ -77,17 +77,17 @@ class CollisionMPM:
             raise ValueError("ParticleSet.material_id refers to a material that does not exist")
         if any(not 0 <= int(i) < self.n_objects for i in rigid_objects):
             raise ValueError(f"rigid_objects {list(rigid_objects)} name objects outside 0..{self.n_objects - 1}")
-        # Rigid objects (fracture_gs.mpm.rigid) move as one body; their wave speed sets no time step.
-        self.rigid = RigidBodies(rigid_objects, self.particles.x, self.particles.mass, self.particles.obj_id,
-                                 domain.dx, self.ground_height, self.ground_friction)
-        rigid_ids = torch.tensor(self.rigid.objects, dtype=self.particles.obj_id.dtype, device=self.device)
-        deforming = ~torch.isin(self.particles.obj_id, rigid_ids)
-        rows = torch.unique(self.particles.material_id[deforming]).tolist()
-        self.max_wave_speed = max((float(self.materials[row].wave_speed) for row in rows), default=0.0)
 
         collision_mode = self.contact.mode == "collision"
         self.n_grids = self.n_objects if collision_mode else 1
         self.geometry = GridGeometry.from_domain(domain, self.n_grids)
+        # Rigid objects (fracture_gs.mpm.rigid) move as one body; their wave speed sets no time step.
+        self.rigid = RigidBodies(rigid_objects, self.particles.x, self.particles.mass, self.particles.obj_id,
+                                 domain.dx, self._contact_planes())
+        rigid_ids = torch.tensor(self.rigid.objects, dtype=self.particles.obj_id.dtype, device=self.device)
+        deforming = ~torch.isin(self.particles.obj_id, rigid_ids)
+        rows = torch.unique(self.particles.material_id[deforming]).tolist()
+        self.max_wave_speed = max((float(self.materials[row].wave_speed) for row in rows), default=0.0)
         self.grid_id = self._grid_ids(self.particles)
         self.use_contact = collision_mode and self.n_grids >= 2
         # Fragments (docs/formulas.md §8): each grid g gets a second field, grid n_grids + g, for the other
@@ -137,6 +137,20 @@ class CollisionMPM:
                 self.ground_friction = float(boundary.friction)
             else:
                 raise TypeError(f"unknown boundary {boundary!r}")
+
+    def _contact_planes(self) -> list[ContactPlane]:
+        """The planes rigid bodies stay on one side of: the ground (its friction) and the faces
+        particles are clamped to, the walls' inner faces (frictionless, sticky walls: no sliding)."""
+        lower, upper = self.geometry.clamp_bounds()
+        wall_friction = math.inf if self.wall_condition == "sticky" else 0.0
+        planes = []
+        for axis in range(3):
+            normal = tuple(1.0 if i == axis else 0.0 for i in range(3))
+            planes.append(ContactPlane(normal, lower[axis], wall_friction))  # type: ignore[arg-type]
+            planes.append(ContactPlane(tuple(-n for n in normal), -upper[axis], wall_friction))  # type: ignore[arg-type]
+        if self.ground_height is not None:
+            planes.append(ContactPlane((0.0, 0.0, 1.0), self.ground_height, self.ground_friction))
+        return planes
 
     def _grid_ids(self, particles: ParticleSet) -> torch.Tensor:
         """Grid of each particle: its object's (collision mode) or the shared grid 0 (mls)."""
