@@ -95,6 +95,7 @@ class RigidBody:
     offset: torch.Tensor          # (n, 3) float64, r₀ in the body frame
     mass: torch.Tensor            # (n,) float64
     total_mass: float
+    half_extent: np.ndarray       # (3,), the largest |r₀| per body axis: a box that holds the body
     inertia: np.ndarray           # (3, 3), rest inertia about the mass centre incl. the affine share
     centre: np.ndarray            # (3,) float64
     rotation: np.ndarray          # (3, 3) float64
@@ -124,7 +125,8 @@ class RigidBodies:
             squared = (offset * offset).sum(1)
             inertia = (m * squared).sum() * eye - (m[:, None, None] * offset[:, :, None] * offset[:, None, :]).sum(0)
             inertia = inertia + 2.0 * self.affine * total * eye
-            self.bodies.append(RigidBody(index, rows, offset, m, float(total), inertia.cpu().numpy(),
+            self.bodies.append(RigidBody(index, rows, offset, m, float(total),
+                                         offset.abs().amax(0).cpu().numpy(), inertia.cpu().numpy(),
                                          centre.cpu().numpy(), np.eye(3)))
         self._current_rows: list[torch.Tensor] | None = None
 
@@ -192,10 +194,15 @@ class RigidBodies:
         """The body's velocity and spin after the plane constraints (module docstring); ``arm``: the
         particles' offsets from the centre at the substep's start."""
         rows, bounds, owners = [], [], []
+        margin = CONTACT_MARGIN_CELLS * self.dx
         for k, plane in enumerate(self.planes):
             normal = np.asarray(plane.normal, dtype=np.float64)
-            distance = arm @ torch.as_tensor(normal, device=arm.device) + (float(normal @ body.centre) - plane.offset)
-            near = torch.nonzero(distance < CONTACT_MARGIN_CELLS * self.dx).flatten()
+            centre_distance = float(normal @ body.centre) - plane.offset
+            # the body's box reaches no closer to the plane than this: most planes need no particle
+            if centre_distance - float(np.abs(body.rotation.T @ normal) @ body.half_extent) >= margin:
+                continue
+            distance = arm @ torch.as_tensor(normal, device=arm.device) + centre_distance
+            near = torch.nonzero(distance < margin).flatten()
             if len(near) == 0:
                 continue
             r = arm.index_select(0, near).cpu().numpy()
