@@ -12,7 +12,7 @@ import torch
 from fracture_gs.config.scene import SceneError, parse_scene
 from fracture_gs.materials import ElasticMaterial
 from fracture_gs.metrics.shape import rigid_fit_residual
-from fracture_gs.mpm.rigid import RigidBodies, axial, rotation_exp, skew
+from fracture_gs.mpm.rigid import RigidBodies, rotation_exp, skew
 from fracture_gs.mpm.solver import CollisionMPM
 from fracture_gs.mpm.types import BoxBoundary, ContactSettings, Domain, GroundBoundary
 from fracture_gs.testing.lattice import LatticeBody, lattice_box, lattice_sphere, particle_set
@@ -30,6 +30,12 @@ def random_body(seed: int) -> tuple[RigidBodies, torch.Tensor, torch.Tensor]:
     mass = 0.5 + torch.rand(400, generator=generator)
     bodies = RigidBodies([0], x, mass, torch.zeros(400, dtype=torch.int32), dx=0.02)
     return bodies, x, mass
+
+
+def axial(matrices: torch.Tensor) -> torch.Tensor:
+    """(n, 3): a_k = ε_kij M_ji of each matrix (twice the axial vector of its skew part)."""
+    return torch.stack((matrices[:, 2, 1] - matrices[:, 1, 2], matrices[:, 0, 2] - matrices[:, 2, 0],
+                        matrices[:, 1, 0] - matrices[:, 0, 1]), dim=1)
 
 
 def apic_momenta(bodies: RigidBodies, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, mass: torch.Tensor

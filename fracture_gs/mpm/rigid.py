@@ -58,11 +58,10 @@ class ContactPlane:
     friction: float = 0.0
 
 
-def axial(matrices: torch.Tensor) -> torch.Tensor:
-    """(n, 3) vectors a with a_k = ε_kij M_ji: twice the axial vector of the skew part of each (n, 3, 3)
-    matrix (for M = [ω]× it is 2 ω)."""
-    return torch.stack((matrices[:, 2, 1] - matrices[:, 1, 2], matrices[:, 0, 2] - matrices[:, 2, 0],
-                        matrices[:, 1, 0] - matrices[:, 0, 1]), dim=1)
+def axial_of(matrix: np.ndarray) -> np.ndarray:
+    """The vector a with a_k = ε_kij M_ji: twice the axial vector of the skew part of a (3, 3) matrix
+    (for M = [ω]× it is 2 ω)."""
+    return np.array([matrix[2, 1] - matrix[1, 2], matrix[0, 2] - matrix[2, 0], matrix[1, 0] - matrix[0, 1]])
 
 
 def skew(vector: np.ndarray) -> np.ndarray:
@@ -93,8 +92,9 @@ class RigidBody:
     object_index: int
     input_rows: torch.Tensor      # (n,) int64, rows of the solver's input ParticleSet
     offset: torch.Tensor          # (n, 3) float64, r₀ in the body frame
-    mass: torch.Tensor            # (n,) float64
+    moments: torch.Tensor         # (4, n) float64: the masses m and the rows of (m r₀)ᵀ
     total_mass: float
+    radius: float                 # the largest |r₀|
     half_extent: np.ndarray       # (3,), the largest |r₀| per body axis: a box that holds the body
     inertia: np.ndarray           # (3, 3), rest inertia about the mass centre incl. the affine share
     centre: np.ndarray            # (3,) float64
@@ -125,9 +125,10 @@ class RigidBodies:
             squared = (offset * offset).sum(1)
             inertia = (m * squared).sum() * eye - (m[:, None, None] * offset[:, :, None] * offset[:, None, :]).sum(0)
             inertia = inertia + 2.0 * self.affine * total * eye
-            self.bodies.append(RigidBody(index, rows, offset, m, float(total),
-                                         offset.abs().amax(0).cpu().numpy(), inertia.cpu().numpy(),
-                                         centre.cpu().numpy(), np.eye(3)))
+            moments = torch.cat([m[None, :], (m[:, None] * offset).T]).contiguous()
+            self.bodies.append(RigidBody(index, rows, offset, moments, float(total),
+                                         float(squared.max().sqrt()), offset.abs().amax(0).cpu().numpy(),
+                                         inertia.cpu().numpy(), centre.cpu().numpy(), np.eye(3)))
         self._current_rows: list[torch.Tensor] | None = None
 
     def __len__(self) -> int:
@@ -153,46 +154,46 @@ class RigidBodies:
     def project(self, x: torch.Tensor, v: torch.Tensor, C: torch.Tensor, F_E: torch.Tensor, stress: torch.Tensor,
                 input_index: torch.Tensor, dt: float) -> tuple[float, torch.Tensor]:
         """Replace the rigid particles' G2P results (in place, current order) by their body's rigid
-        motion. Returns the largest rigid particle speed (0 without bodies) and the (3,) float64
-        impulse the contact planes gave the bodies."""
+        motion. Returns a bound on the largest rigid particle speed (|V| + |ω| max|r₀|; 0 without
+        bodies) and the (3,) float64 impulse the contact planes gave the bodies."""
         fastest = 0.0
         plane_impulse = np.zeros(3)
         for body, rows in zip(self.bodies, self.current_rows(input_index)):
-            velocity = torch.index_select(v, 0, rows).double()
-            affine = torch.index_select(C, 0, rows).double()
-            m = body.mass[:, None]
-            rotation = torch.as_tensor(body.rotation, device=x.device)
-            arm = body.offset @ rotation.T                      # r at the step's start
-            sums = torch.cat([(m * velocity).sum(0), (m * torch.cross(arm, velocity, dim=1)).sum(0)
-                              + self.affine * (m * axial(affine)).sum(0)]).cpu().numpy()
-            linear, angular = sums[:3] / body.total_mass, sums[3:]
-            inertia = body.rotation @ body.inertia @ body.rotation.T
+            # one product gives Σ m v, Σ m C and Σ m r₀ vᵀ: the body's momenta
+            gathered = torch.cat([torch.index_select(v, 0, rows), torch.index_select(C, 0, rows).reshape(-1, 9)], 1)
+            sums = (body.moments @ gathered.double()).cpu().numpy()
+            start = body.rotation
+            moment = start @ sums[1:, :3]                       # Σ m r vᵀ with r at the step's start
+            angular = (np.array([moment[1, 2] - moment[2, 1], moment[2, 0] - moment[0, 2], moment[0, 1] - moment[1, 0]])
+                       + self.affine * axial_of(sums[0, 3:].reshape(3, 3)))
+            linear = sums[0, :3] / body.total_mass
+            inertia = start @ body.inertia @ start.T
             spin = np.linalg.solve(inertia, angular)
             if self.planes:
-                constrained, spin = self._plane_contact(body, arm, linear, spin, inertia, dt)
+                constrained, spin = self._plane_contact(body, linear, spin, inertia, dt)
                 plane_impulse += body.total_mass * (constrained - linear)
                 angular = inertia @ spin
                 linear = constrained
             body.centre = body.centre + dt * linear
-            body.rotation = orthonormal(rotation_exp(dt * spin) @ body.rotation)
+            body.rotation = orthonormal(rotation_exp(dt * spin) @ start)
             spin = np.linalg.solve(body.rotation @ body.inertia @ body.rotation.T, angular)
-            rotation = torch.as_tensor(body.rotation, device=x.device)
-            arm = body.offset @ rotation.T
-            spin_t = torch.as_tensor(spin, device=x.device)
-            new_velocity = torch.as_tensor(linear, device=x.device) + torch.cross(spin_t.expand_as(arm), arm, dim=1)
-            x.index_copy_(0, rows, (torch.as_tensor(body.centre, device=x.device) + arm).to(x.dtype))
-            v.index_copy_(0, rows, new_velocity.to(v.dtype))
-            C.index_copy_(0, rows, torch.as_tensor(skew(spin), dtype=C.dtype, device=x.device)
-                          .expand(len(rows), 3, 3).contiguous())
-            F_E.index_copy_(0, rows, rotation.to(F_E.dtype).expand(len(rows), 3, 3).contiguous())
+            # x = X + R r₀ and v = V + ω × (R r₀) in one product with [Rᵀ | Rᵀ [ω]×ᵀ]
+            turn = np.concatenate([body.rotation.T, body.rotation.T @ skew(spin).T], axis=1)
+            base = torch.as_tensor(np.concatenate([body.centre, linear]), device=x.device)
+            motion = torch.addmm(base, body.offset, torch.as_tensor(turn, device=x.device)).to(x.dtype)
+            x.index_copy_(0, rows, motion[:, :3].contiguous())
+            v.index_copy_(0, rows, motion[:, 3:].contiguous())
+            constant = torch.as_tensor(np.stack([skew(spin), body.rotation]), dtype=C.dtype, device=x.device)
+            C.index_copy_(0, rows, constant[0].expand(len(rows), 3, 3).contiguous())
+            F_E.index_copy_(0, rows, constant[1].expand(len(rows), 3, 3).contiguous())
             stress.index_fill_(0, rows, 0.0)
-            fastest = max(fastest, float(torch.linalg.vector_norm(new_velocity, dim=1).max()))
+            fastest = max(fastest, float(np.linalg.norm(linear) + np.linalg.norm(spin) * body.radius))
         return fastest, torch.as_tensor(plane_impulse, device=x.device)
 
-    def _plane_contact(self, body: RigidBody, arm: torch.Tensor, linear: np.ndarray, spin: np.ndarray,
-                       inertia: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """The body's velocity and spin after the plane constraints (module docstring); ``arm``: the
-        particles' offsets from the centre at the substep's start."""
+    def _plane_contact(self, body: RigidBody, linear: np.ndarray, spin: np.ndarray, inertia: np.ndarray,
+                       dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """The body's velocity and spin after the plane constraints (module docstring), for the body
+        as it stands at the substep's start."""
         rows, bounds, owners = [], [], []
         margin = CONTACT_MARGIN_CELLS * self.dx
         for k, plane in enumerate(self.planes):
@@ -201,13 +202,14 @@ class RigidBodies:
             # the body's box reaches no closer to the plane than this: most planes need no particle
             if centre_distance - float(np.abs(body.rotation.T @ normal) @ body.half_extent) >= margin:
                 continue
-            distance = arm @ torch.as_tensor(normal, device=arm.device) + centre_distance
+            along = torch.as_tensor(body.rotation.T @ normal, device=body.offset.device)
+            distance = body.offset @ along + centre_distance
             near = torch.nonzero(distance < margin).flatten()
             if len(near) == 0:
                 continue
-            r = arm.index_select(0, near).cpu().numpy()
+            r = body.offset.index_select(0, near).cpu().numpy() @ body.rotation.T
             gap = distance.index_select(0, near).cpu().numpy()
-            rows.append(np.concatenate([np.broadcast_to(normal, r.shape), np.cross(r, normal)], axis=1))
+            rows.append(np.concatenate([np.broadcast_to(normal, r.shape), r @ skew(normal)], axis=1))  # r × n
             bounds.append(np.where(gap >= 0.0, -gap / dt, -RECOVERY * gap / dt))
             owners.append(np.full(len(r), k))
         if not rows:

@@ -140,13 +140,15 @@ class CollisionMPM:
 
     def _contact_planes(self) -> list[ContactPlane]:
         """The planes rigid bodies stay on one side of: the ground (its friction) and the faces
-        particles are clamped to, the walls' inner faces (frictionless, sticky walls: no sliding)."""
+        particles are clamped to, the walls' inner faces (frictionless, sticky walls: no sliding);
+        the floor's face only where no ground lies above it."""
         lower, upper = self.geometry.clamp_bounds()
         wall_friction = math.inf if self.wall_condition == "sticky" else 0.0
         planes = []
         for axis in range(3):
             normal = tuple(1.0 if i == axis else 0.0 for i in range(3))
-            planes.append(ContactPlane(normal, lower[axis], wall_friction))  # type: ignore[arg-type]
+            if not (axis == 2 and self.ground_height is not None and self.ground_height >= lower[axis]):
+                planes.append(ContactPlane(normal, lower[axis], wall_friction))  # type: ignore[arg-type]
             planes.append(ContactPlane(tuple(-n for n in normal), -upper[axis], wall_friction))  # type: ignore[arg-type]
         if self.ground_height is not None:
             planes.append(ContactPlane((0.0, 0.0, 1.0), self.ground_height, self.ground_friction))
