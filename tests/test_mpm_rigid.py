@@ -97,9 +97,10 @@ def struck_bar(backend: str = "auto", gravity: tuple[float, float, float] = (0.0
     """A steel bar (rigid) lying along x, struck near its +x end by a soft ball moving down."""
     domain = Domain((0, 0, 0), (1, 1, 1), 32)
     spacing = domain.dx / 2
-    bar = lattice_box((0.5, 0.5, 0.3 if ground else 0.4), (0.6, 0.1, 0.1), spacing)
-    ball = lattice_sphere((0.72, 0.5, 0.4 + 0.05 + 0.06 + 1.5 * domain.dx) if not ground
-                          else (0.72, 0.5, 0.3 + 0.05 + 0.06 + 1.5 * domain.dx), 0.06, spacing)
+    bar_height = 0.3 if ground else 0.4
+    bar = lattice_box((0.5, 0.5, bar_height), (0.6, 0.1, 0.1), spacing)
+    # the ball (radius 0.06) 1.5 cells above the bar's top face (half-thickness 0.05)
+    ball = lattice_sphere((0.72, 0.5, bar_height + 0.05 + 0.06 + 1.5 * domain.dx), 0.06, spacing)
     bodies = [LatticeBody(bar, (0, 0, 0), 0, spacing), LatticeBody(ball, (0, 0, -3.0), 1, spacing)]
     return CollisionMPM(particle_set(bodies, [STEEL.density, BALL.density]), [STEEL, BALL], domain,
                         contact=ContactSettings(), gravity=gravity, backend=backend, rigid_objects=[0],

@@ -34,3 +34,11 @@ def spatial_order(x: torch.Tensor, obj_id: torch.Tensor, domain: Domain) -> torc
     cell_index = (cell[:, 0] * BLOCK + cell[:, 1]) * BLOCK + cell[:, 2]
     key = (obj_id.long() * int(blocks.prod()) + block_index) * BLOCK ** 3 + cell_index
     return torch.argsort(key, stable=True)
+
+
+def inverse_permutation(order: torch.Tensor) -> torch.Tensor:
+    """``where`` with ``where[order[i]] = i``: for the solver's ``input_index`` (input row of each
+    current row), the current row of each input row."""
+    where = torch.empty_like(order)
+    where[order] = torch.arange(len(order), device=order.device, dtype=order.dtype)
+    return where

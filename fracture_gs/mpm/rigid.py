@@ -44,6 +44,8 @@ import numpy as np
 import torch
 from scipy.optimize import nnls
 
+from fracture_gs.mpm.ordering import inverse_permutation
+
 CONTACT_MARGIN_CELLS = 1.0  # particles this close to a plane are contact candidates
 RECOVERY = 0.2              # share of a penetration undone per substep
 
@@ -111,6 +113,7 @@ class RigidBodies:
         self.affine = 0.25 * dx * dx   # D = Δx²/4 of the quadratic kernel's APIC transfer
         self.dx = float(dx)
         self.planes = list(planes)
+        self._normals = [np.asarray(plane.normal, dtype=np.float64) for plane in self.planes]
         self.bodies: list[RigidBody] = []
         eye = torch.eye(3, dtype=torch.float64, device=x.device)
         for index in sorted(set(int(i) for i in objects)):
@@ -146,8 +149,7 @@ class RigidBodies:
     def current_rows(self, input_index: torch.Tensor) -> list[torch.Tensor]:
         """Per body, the current rows of its particles (``input_index[i]``: input row of current row i)."""
         if self._current_rows is None:
-            where = torch.empty_like(input_index)
-            where[input_index] = torch.arange(len(input_index), device=input_index.device)
+            where = inverse_permutation(input_index)
             self._current_rows = [torch.index_select(where, 0, body.input_rows) for body in self.bodies]
         return self._current_rows
 
@@ -164,8 +166,8 @@ class RigidBodies:
             sums = (body.moments @ gathered.double()).cpu().numpy()
             start = body.rotation
             moment = start @ sums[1:, :3]                       # Σ m r vᵀ with r at the step's start
-            angular = (np.array([moment[1, 2] - moment[2, 1], moment[2, 0] - moment[0, 2], moment[0, 1] - moment[1, 0]])
-                       + self.affine * axial_of(sums[0, 3:].reshape(3, 3)))
+            # Σ m r × v = -axial(Σ m r vᵀ), plus the affine share D axial(Σ m C)
+            angular = self.affine * axial_of(sums[0, 3:].reshape(3, 3)) - axial_of(moment)
             linear = sums[0, :3] / body.total_mass
             inertia = start @ body.inertia @ start.T
             spin = np.linalg.solve(inertia, angular)
@@ -196,8 +198,7 @@ class RigidBodies:
         as it stands at the substep's start."""
         rows, bounds, owners = [], [], []
         margin = CONTACT_MARGIN_CELLS * self.dx
-        for k, plane in enumerate(self.planes):
-            normal = np.asarray(plane.normal, dtype=np.float64)
+        for k, (plane, normal) in enumerate(zip(self.planes, self._normals)):
             centre_distance = float(normal @ body.centre) - plane.offset
             # the body's box reaches no closer to the plane than this: most planes need no particle
             if centre_distance - float(np.abs(body.rotation.T @ normal) @ body.half_extent) >= margin:
@@ -236,29 +237,28 @@ class RigidBodies:
             return linear, spin
         velocity = free + root_inverse @ (-residual[:6] / residual[6])
         impulse = weights / -residual[6]
-        for k, plane in enumerate(self.planes):
+        for k, (plane, normal) in enumerate(zip(self.planes, self._normals)):
             normal_impulse = float(impulse[owner == k].sum())
             if normal_impulse <= 0.0:
                 continue
-            normal = np.asarray(plane.normal, dtype=np.float64)
             sliding = velocity[:3] - (velocity[:3] @ normal) * normal
             speed = float(np.linalg.norm(sliding))
             if speed > 0.0:
                 velocity[:3] -= sliding * min(1.0, plane.friction * normal_impulse / mass / speed)
         return velocity[:3], velocity[3:]
 
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        """Centres (B, 3) and rotations (B, 3, 3), float64."""
+    def state_dict(self) -> dict[str, np.ndarray]:
+        """Centres (B, 3) and rotations (B, 3, 3), float64 (nothing without bodies)."""
         if not self.bodies:
             return {}
-        return {"rigid_centre": torch.as_tensor(np.stack([body.centre for body in self.bodies])),
-                "rigid_rotation": torch.as_tensor(np.stack([body.rotation for body in self.bodies]))}
+        return {"rigid_centre": np.stack([body.centre for body in self.bodies]),
+                "rigid_rotation": np.stack([body.rotation for body in self.bodies])}
 
-    def load_state_dict(self, centre: torch.Tensor, rotation: torch.Tensor) -> None:
+    def load_state_dict(self, centre: np.ndarray, rotation: np.ndarray) -> None:
         """Restore what :meth:`state_dict` wrote."""
         if centre.shape != (len(self.bodies), 3) or rotation.shape != (len(self.bodies), 3, 3):
             raise ValueError(f"checkpoint rigid bodies have shapes {tuple(centre.shape)} / {tuple(rotation.shape)}, "
                              f"the scene has {len(self.bodies)} rigid objects")
         for k, body in enumerate(self.bodies):
-            body.centre = centre[k].double().cpu().numpy().copy()
-            body.rotation = rotation[k].double().cpu().numpy().copy()
+            body.centre = np.array(centre[k], dtype=np.float64)
+            body.rotation = np.array(rotation[k], dtype=np.float64)

@@ -20,7 +20,7 @@ from fracture_gs.mpm.fragments import count_fragments, fragment_ids, object_link
 from fracture_gs.mpm.impulse import ExternalImpulse
 from fracture_gs.mpm.grid import FragmentFields, G2PStats, GridFields, GridGeometry, ParticleBins
 from fracture_gs.materials import COLUMN, MaterialTable, SubstepView, elastic_energy
-from fracture_gs.mpm.ordering import spatial_order
+from fracture_gs.mpm.ordering import inverse_permutation, spatial_order
 from fracture_gs.mpm.rigid import ContactPlane, RigidBodies
 from fracture_gs.mpm.types import (BoxBoundary, ContactSettings, Domain, GroundBoundary, ParticleSet, SimState,
                                    SimulationBlowUp, StepStats)
@@ -311,9 +311,7 @@ class CollisionMPM:
 
     def state_in_input_order(self) -> SimState:
         """The state with rows in the order of the ParticleSet given to the constructor."""
-        where = torch.empty_like(self.input_index)  # where[j]: current row of input particle j
-        where[self.input_index] = torch.arange(len(where), device=where.device)
-        return self.state.take(where)
+        return self.state.take(inverse_permutation(self.input_index))
 
     def frame_fields_in_input_order(self) -> dict[str, torch.Tensor]:
         """The material state fields every frame holds (``MaterialTable.frame_fields``, e.g. the
@@ -428,7 +426,7 @@ class CollisionMPM:
         out["max_speed"] = np.float64(self.max_speed)
         out["external_impulse"] = np.asarray(self.external_impulse.state(), dtype=np.float64)
         out["dissipated_energy"] = self.dissipated_energy.cpu().numpy()
-        out.update({key: value.cpu().numpy() for key, value in self.rigid.state_dict().items()})
+        out.update(self.rigid.state_dict())
         return out
 
     def load_state_dict(self, data: dict) -> None:
@@ -457,8 +455,7 @@ class CollisionMPM:
         if len(self.rigid):
             if "rigid_centre" not in data or "rigid_rotation" not in data:
                 raise KeyError("checkpoint has no 'rigid_centre' / 'rigid_rotation' (the scene has rigid objects)")
-            self.rigid.load_state_dict(torch.as_tensor(np.asarray(data["rigid_centre"]), device=self.device),
-                                       torch.as_tensor(np.asarray(data["rigid_rotation"]), device=self.device))
+            self.rigid.load_state_dict(np.asarray(data["rigid_centre"]), np.asarray(data["rigid_rotation"]))
         self.stress = tensors.pop("stress").float()
         material_state = tensors["material_state"].float()
         width = self.table.state_width

@@ -53,6 +53,7 @@ OBJECTS = ("teapot", "table")
 TEAPOT_SOFTENING = 300.0
 TEAPOT_MATERIAL = {"part": 0, "preset": "porcelain", "softening": TEAPOT_SOFTENING,
                    "interior_colour": [0.96, 0.95, 0.92]}
+TABLE_RIGID = True
 TABLE_MATERIALS = [{"part": part, "model": "elastic", "E": 2.6e8, "nu": 0.25, "density": 2650}
                    for part in (0, 1)]
 TEAPOT_SPEED = 10.0   # m/s, downwards
@@ -158,7 +159,7 @@ def demo_scene(teapot: Path, table: Path, grid: int, frames: int, mode: str = "c
              "velocity": [0, 0, -TEAPOT_SPEED], "materials": [TEAPOT_MATERIAL]},
             {"name": "table", "model": str(table.resolve()),
              "transform": {"scale": round(table_scale, 5), "translate": table_translate},
-             "velocity": [0, 0, 0], "rigid": True, "materials": TABLE_MATERIALS},
+             "velocity": [0, 0, 0], "rigid": TABLE_RIGID, "materials": TABLE_MATERIALS},
         ],
     }
 
@@ -370,7 +371,7 @@ def stage_settings(demo: Demo, stage: str) -> dict | None:
     if stage == "train":
         return {name: train_sizes(demo.profile, name) for name in OBJECTS}
     if stage == "scene":
-        return {"teapot": TEAPOT_MATERIAL, "table": TABLE_MATERIALS, "table_rigid": True, "speed": TEAPOT_SPEED,
+        return {"teapot": TEAPOT_MATERIAL, "table": TABLE_MATERIALS, "table_rigid": TABLE_RIGID, "speed": TEAPOT_SPEED,
                 "grid": demo.profile.grid, "frames": demo.profile.frames, "frame_dt": demo.profile.frame_dt}
     return None
 
