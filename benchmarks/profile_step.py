@@ -1,13 +1,15 @@
 """Where the Collision-MPM step spends its time, kernel by kernel (prints JSON).
 
 The scene is bench_mpm.py's: two spheres of one material pressed into each other at 6 m/s, in
-simulate.py's particle order, after 40 warm-up steps. For every configuration (material NACC or
-brittle, cracks opening or not, each particle count) it times --steps steps and splits each step
+simulate.py's particle order, after --warmup steps (40 by default: the spheres press into each other;
+by 150 the brittle spheres have cracked through much of their volume, as in the late blocks of
+bench_gaussianfluent.py). For every configuration (material NACC or brittle, cracks opening or not,
+each particle count) it times --steps steps and splits each step
 into the solver's calls of ``fracture_gs.mpm.ops`` (binning, P2G, the fragment passes, grid update,
 contact, boundaries, G2P with the material update, ...); ``other`` is the rest of the step in
 Python (the material's per-substep hook, the blow-up check, the periodic re-sort).
 
-    python benchmarks/profile_step.py [--grid 128] [--particles 50000 200000] [--steps 20]
+    python benchmarks/profile_step.py [--grid 128] [--particles 50000 200000] [--steps 20] [--warmup 40]
 
 Each op is timed around its call (on CUDA with a synchronize before and after, which serialises
 the stream: the sum is then a little above the unprofiled step). The JSON gives per configuration
@@ -92,8 +94,11 @@ def main() -> None:
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--particles", type=int, nargs="+", default=[50_000, 200_000])
     parser.add_argument("--steps", type=int, default=20, help="profiled steps per configuration")
+    parser.add_argument("--warmup", type=int, default=40, help="steps before the profiled ones")
     parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
+    if args.warmup < 0 or args.steps < 1:
+        parser.error("--warmup must be >= 0 and --steps >= 1")
     if compiled_module() is None:
         parser.error("the compiled extension fracture_gs._C is not built (bash install.sh)")
     device = torch.device(args.device)
@@ -102,10 +107,10 @@ def main() -> None:
         for material in ("nacc", "brittle"):
             for fragments in (False, True):
                 solver = two_spheres(n, args.grid, device, "cpp", fragments, material)
-                for _ in range(40):
+                for _ in range(args.warmup):
                     solver.step(solver.stable_dt())
                 row = {"material": material, "fragments": fragments, "particles": len(solver.particles),
-                       "steps": args.steps}
+                       "warmup": args.warmup, "steps": args.steps}
                 row.update(profile(solver, args.steps))
                 row["fractured_fraction"] = round(float(solver.state.fractured.float().mean()), 4)
                 rows.append(row)

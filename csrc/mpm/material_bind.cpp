@@ -3,6 +3,7 @@
 
 #include <string>
 #include <tuple>
+#include <vector>
 
 #include "common/constitutive.h"
 #include "mpm/material_kernels.h"
@@ -164,6 +165,56 @@ std::tuple<torch::Tensor, torch::Tensor, torch::Tensor> svd3_batch_op(const torc
   return {U, sigma, V};
 }
 
+// split_direction_step on the rows of `state` (N, S) float32 (changed in place) where mine (N,) bool is set.
+void advance_split_directions_op(torch::Tensor& state, const torch::Tensor& trigger_old, const torch::Tensor& C,
+                                 const torch::Tensor& F_E, const torch::Tensor& mine, int64_t first,
+                                 int64_t trigger, double start, double dt, const std::vector<double>& orientation) {
+  TORCH_CHECK_VALUE(state.dim() == 2, "state must have shape (N, S), got ", state.sizes());
+  check_float_tensor(state, "state");
+  TORCH_CHECK_VALUE(state.is_contiguous(), "state must be contiguous (it is changed in place)");
+  const int64_t n = state.size(0), stride = state.size(1);
+  TORCH_CHECK_VALUE(first >= 0 && first + 3 <= stride, "first: columns [", first, ", ", first + 3,
+                    ") are not all in a state of ", stride, " columns");
+  TORCH_CHECK_VALUE(trigger >= 0 && trigger < stride, "trigger: column ", trigger, " is not in a state of ",
+                    stride, " columns");
+  TORCH_CHECK_VALUE(orientation.size() == 3, "orientation must have 3 components");
+  check_deformation(C, "C");
+  check_deformation(F_E, "F_E");
+  TORCH_CHECK_VALUE(C.size(0) == n && F_E.size(0) == n, "C and F_E must have one row per state row");
+  TORCH_CHECK_VALUE(trigger_old.dim() == 1 && trigger_old.size(0) == n, "trigger_old must have shape (", n,
+                    ",), got ", trigger_old.sizes());
+  check_float_tensor(trigger_old, "trigger_old");
+  TORCH_CHECK_VALUE(mine.dim() == 1 && mine.size(0) == n, "mine must have shape (", n, ",), got ", mine.sizes());
+  TORCH_CHECK_TYPE(mine.scalar_type() == torch::kBool, "mine must be bool, got ", mine.scalar_type());
+  const auto& device = state.device();
+  TORCH_CHECK_VALUE(trigger_old.device() == device && C.device() == device && F_E.device() == device &&
+                        mine.device() == device,
+                    "state, trigger_old, C, F_E and mine must be on one device");
+  const SplitDirectionParams params{static_cast<int>(first), static_cast<int>(trigger), static_cast<float>(start),
+                                    static_cast<float>(dt),
+                                    {static_cast<float>(orientation[0]), static_cast<float>(orientation[1]),
+                                     static_cast<float>(orientation[2])}};
+  const auto old_in = trigger_old.contiguous();
+  const auto C_in = C.contiguous();
+  const auto F_in = F_E.contiguous();
+  const auto mine_in = mine.contiguous();
+  const auto* mine_ptr = reinterpret_cast<const uint8_t*>(mine_in.data_ptr<bool>());
+  if (state.is_cuda()) {
+#ifdef FGS_WITH_CUDA
+    const c10::cuda::CUDAGuard guard(device);
+    advance_split_directions_cuda(n, state.data_ptr<float>(), static_cast<int>(stride), old_in.data_ptr<float>(),
+                                  C_in.data_ptr<float>(), F_in.data_ptr<float>(), mine_ptr, params,
+                                  current_cuda_stream());
+    C10_CUDA_KERNEL_LAUNCH_CHECK();
+#else
+    TORCH_CHECK(false, "advance_split_directions: fracture_gs._C was built without CUDA");
+#endif
+  } else {
+    advance_split_directions_cpu(n, state.data_ptr<float>(), static_cast<int>(stride), old_in.data_ptr<float>(),
+                                 C_in.data_ptr<float>(), F_in.data_ptr<float>(), mine_ptr, params);
+  }
+}
+
 }  // namespace
 
 void register_materials(pybind11::module& m) {
@@ -178,6 +229,12 @@ void register_materials(pybind11::module& m) {
   m.def("material_models", &material_models,
         "The material models of the kernels: [{code, name, parameters, state}] in code order");
   m.attr("max_state_fields") = static_cast<int>(kMaxStateFields);
+  m.def("advance_split_directions", &advance_split_directions_op,
+        "Split directions carried with the material, in place: (state (N,S) f32, trigger_old (N,) f32, C (N,3,3), "
+        "F_E (N,3,3), mine (N,) bool, first, trigger, start, dt, orientation [3])",
+        pybind11::arg("state"), pybind11::arg("trigger_old"), pybind11::arg("C"), pybind11::arg("F_E"),
+        pybind11::arg("mine"), pybind11::arg("first"), pybind11::arg("trigger"), pybind11::arg("start"),
+        pybind11::arg("dt"), pybind11::arg("orientation"));
   m.def("svd3_batch", &svd3_batch_op,
         "F = U diag(sigma) V^T with det U = det V = +1: F (N,3,3) f32 -> (U, sigma (N,3), V)",
         pybind11::arg("F"));

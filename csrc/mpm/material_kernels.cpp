@@ -67,4 +67,12 @@ void svd3_batch_cpu(int64_t n, const float* F, float* U, float* sigma, float* V)
   for (int64_t i = 0; i < n; ++i) svd3(F + 9 * i, U + 9 * i, sigma + 3 * i, V + 9 * i);
 }
 
+void advance_split_directions_cpu(int64_t n, float* state, int stride, const float* trigger_old, const float* C,
+                                  const float* F_E, const uint8_t* mine, const SplitDirectionParams& params) {
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < n; ++i)
+    if (mine[i]) split_direction_step(state + static_cast<int64_t>(stride) * i, trigger_old[i], C + 9 * i, F_E + 9 * i,
+                                      params);
+}
+
 }  // namespace fgs

@@ -46,6 +46,15 @@ __global__ void svd3_batch_kernel(int64_t n, const float* __restrict__ F, float*
   svd3(F + 9 * i, U + 9 * i, sigma + 3 * i, V + 9 * i);
 }
 
+__global__ void advance_split_directions_kernel(int64_t n, float* state, int stride,
+                                                const float* __restrict__ trigger_old, const float* __restrict__ C,
+                                                const float* __restrict__ F_E, const uint8_t* __restrict__ mine,
+                                                SplitDirectionParams params) {
+  const int64_t i = static_cast<int64_t>(blockIdx.x) * blockDim.x + threadIdx.x;
+  if (i >= n || !mine[i]) return;
+  split_direction_step(state + static_cast<int64_t>(stride) * i, trigger_old[i], C + 9 * i, F_E + 9 * i, params);
+}
+
 }  // namespace
 
 void constitutive_update_cuda(int64_t n, const float* F_trial, const float* state_in, int stride,
@@ -66,6 +75,14 @@ void elastic_energy_cuda(int64_t n, const float* F, const float* state, int stri
 void svd3_batch_cuda(int64_t n, const float* F, float* U, float* sigma, float* V, void* stream) {
   if (n == 0) return;
   svd3_batch_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(n, F, U, sigma, V);
+}
+
+void advance_split_directions_cuda(int64_t n, float* state, int stride, const float* trigger_old, const float* C,
+                                   const float* F_E, const uint8_t* mine, const SplitDirectionParams& params,
+                                   void* stream) {
+  if (n == 0) return;
+  advance_split_directions_kernel<<<blocks_for(n), kThreads, 0, static_cast<cudaStream_t>(stream)>>>(
+      n, state, stride, trigger_old, C, F_E, mine, params);
 }
 
 }  // namespace fgs

@@ -40,6 +40,7 @@ import torch
 from fracture_gs import bounds, keys
 from fracture_gs.materials.hencky import ELASTIC_KEYS, compose, hencky_strain, proper_svd, require
 from fracture_gs.materials.model import MaterialModel, SubstepView, field, parameter
+from fracture_gs.materials.split_directions import advance_split_directions
 
 BAND_CELLS = 1.0           # crack band width h in grid cells
 DEFAULT_WEIBULL_M = 0.0    # 0: every particle has the material's strength
@@ -277,27 +278,13 @@ class BrittleMaterial(MaterialModel):
     @classmethod
     def after_substep(cls, view: SubstepView) -> None:
         """Crack planes: carries the normals of cracked particles with the material and gives the
-        particles whose damage became complete in this substep the normal of their crack."""
-        first = cls.state_fields.index(cls.split_direction or "")
-        columns = slice(first, first + 3)
-        if "cracked" not in view.cache:   # rows with a crack normal, in the current particle order
-            view.cache["cracked"] = torch.nonzero((view.state[:, columns] != 0).any(1)).flatten()
-        cracked = view.cache["cracked"]
-        if len(cracked):
-            normal = view.state[cracked, columns]
-            normal = normal - view.dt * (view.C[cracked].mT @ normal[:, :, None])[:, :, 0]
-            view.state[cracked, columns] = normal / torch.linalg.vector_norm(normal, dim=1, keepdim=True)
+        particles whose damage became complete in this substep the normal of their crack
+        (:mod:`fracture_gs.materials.split_directions`)."""
         damage = cls.state_fields.index("damage")
-        grew = torch.nonzero(view.mine & (view.state[:, damage] > view.state_old[:, damage])).flatten()
-        cracked_now = grew[view.state[grew, damage] >= COMPLETE_DAMAGE]   # was below 1 before this substep
-        if len(cracked_now):
-            F = view.F_E[cracked_now].double()
-            _, vectors = torch.linalg.eigh(F @ F.mT)
-            normal = vectors[:, :, -1]
-            orientation = torch.tensor(CRACK_ORIENTATION, dtype=normal.dtype, device=normal.device)
-            sign = torch.where(normal @ orientation < 0, -1.0, 1.0).to(normal.dtype)
-            view.state[cracked_now, columns] = (normal * sign[:, None]).float()
-            view.cache["cracked"] = torch.cat([cracked, cracked_now])
+        advance_split_directions(view.state, view.state_old[:, damage], view.C, view.F_E, view.mine,
+                                 first=cls.state_fields.index(cls.split_direction or ""), trigger=damage,
+                                 start=COMPLETE_DAMAGE, dt=view.dt, orientation=CRACK_ORIENTATION,
+                                 backend=view.backend)
 
 
 def hash_uniform(index: np.ndarray, seed: int) -> np.ndarray:

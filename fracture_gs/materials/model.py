@@ -37,8 +37,9 @@ class SubstepView:
     """What a model's :meth:`MaterialModel.after_substep` may look at and change, in the solver's
     current particle order: ``state_old`` / ``state`` (the block before and after the substep;
     ``state`` may be changed in place), ``F_E`` and ``C`` after the substep, its length ``dt``,
-    ``mine`` (bool (N,): the particles of this model) and ``cache``, a dict the model may keep
-    between substeps (the solver empties it when it re-sorts the particles)."""
+    ``mine`` (bool (N,): the particles of this model), ``cache``, a dict the model may keep
+    between substeps (the solver empties it when it re-sorts the particles), and ``backend``, the
+    solver's choice of compiled kernels or torch twins (``_backend.use_compiled``)."""
 
     state_old: torch.Tensor
     state: torch.Tensor
@@ -47,6 +48,7 @@ class SubstepView:
     dt: float
     mine: torch.Tensor
     cache: dict[str, Any]
+    backend: str = "auto"
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,9 @@ STATE_KEYS = ("x", "v", "C", "F_E", "material_state", "fractured", "stress")
 # gradients as a node reference: its reference vector is the direction times this many 1/cells
 # (split nodes need split_gradient, 0.25 per cell by default).
 SPLIT_DIRECTION_CELLS = 4.0
+# Substeps over which dissipated energy densities add up per particle in float32 before they reach
+# the float64 per-object sums (relative round-off of the float32 sums below 50 * 6e-8).
+DISSIPATION_FLUSH_STEPS = 50
 
 
 class CollisionMPM:
@@ -103,13 +106,17 @@ class CollisionMPM:
         # State field 0 from which a particle of each material counts as damaged for the partition (inf:
         # never), and from which it is a piece of its own (inf: never).
         self.damage_alpha = table.partition_thresholds(self.contact.damage_dilation, self.device)
+        self._damage_threshold: tuple[ParticleSet, torch.Tensor] | None = None  # damage_alpha per particle
         self.piece_threshold = table.piece_thresholds(self.device)
         self.seed = int(seed)
         # The models of the scene with their materials, whether any of them dissipates energy, and the
-        # energy their updates have dissipated (float64, per object).
+        # energy their updates have dissipated (float64, per object): the substeps' densities add up
+        # per particle (float32, current order) and reach the per-object sums every
+        # DISSIPATION_FLUSH_STEPS substeps, at each re-sort and whenever they are read.
         self._models = table.models()
         self._dissipates = any(cls.dissipates for cls, _ in self._models)
-        self.dissipated_energy = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+        self._dissipated_total = torch.zeros(self.n_objects, dtype=torch.float64, device=self.device)
+        self._dissipated_pending: torch.Tensor | None = None
         self._model_particles: dict[type, torch.Tensor] = {}   # per model: bool (N,) in the current order
         self._model_cache: dict[type, dict] = {}               # per model: its after_substep cache
         self.fragment_radius = object_link_radii(self.particles.rest_volume, self.particles.obj_id, self.n_objects)
@@ -190,8 +197,11 @@ class CollisionMPM:
         ``contact.damage_dilation`` (cohesion gone and the material opened; never for elastic
         materials). Unlike the latched ``fractured`` flag this follows the state: NACC's cohesion
         returns where compaction lowers α again."""
-        threshold = torch.index_select(self.damage_alpha, 0, self.particles.material_id)
-        return (self.state.alpha >= threshold).contiguous()
+        cached = self._damage_threshold
+        if cached is None or cached[0] is not self.particles:  # per particle, for the current order
+            cached = self._damage_threshold = (self.particles,
+                                               torch.index_select(self.damage_alpha, 0, self.particles.material_id))
+        return (self.state.alpha >= cached[1]).contiguous()
 
     def stable_dt(self) -> float:
         """CFL time step: cfl * dx / (c_max + |v|_max), c_max over the deforming objects' materials.
@@ -239,10 +249,14 @@ class CollisionMPM:
             rigid_speed, ground_impulse = self.rigid.project(x, v, C, F_E, stress, self.input_index, dt)
             self.external_impulse.add(ground_impulse)
         if dissipated is not None:
-            self._add_dissipated(dissipated)
+            if self._dissipated_pending is None:
+                self._dissipated_pending = dissipated
+            else:
+                self._dissipated_pending.add_(dissipated)
         for cls, _ in self._models:
             cls.after_substep(SubstepView(state_old=s.material_state, state=material_state, F_E=F_E, C=C, dt=dt,
-                                          mine=self._particles_of(cls), cache=self._model_cache.setdefault(cls, {})))
+                                          mine=self._particles_of(cls), cache=self._model_cache.setdefault(cls, {}),
+                                          backend=backend))
         self.state = SimState(x=x, v=v, C=C, F_E=F_E, material_state=material_state, fractured=fractured,
                               time=s.time + dt, step=s.step + 1)
         self.stress = stress
@@ -250,6 +264,8 @@ class CollisionMPM:
         self.max_speed = max(stats.max_speed, rigid_speed)
         if self.reorder_every and self.state.step % self.reorder_every == 0:
             self.reorder()
+        elif self.state.step % DISSIPATION_FLUSH_STEPS == 0:
+            self._flush_dissipated()
         return stats.clamped
 
     def _partition(self, bins: ParticleBins, dt: float) -> tuple[ParticleBins, FragmentFields | None]:
@@ -272,15 +288,24 @@ class CollisionMPM:
         return field_bins, FragmentFields(damage_gradient, g.reference, split_particle.contiguous(),
                                           self.split_gradient, side_mask.contiguous())
 
-    def _add_dissipated(self, dissipated: torch.Tensor) -> None:
-        """Adds what the substep's updates dissipated (energy per unit rest volume, per particle) times
-        the particles' rest volumes to ``dissipated_energy``, per object."""
-        taken = torch.nonzero(dissipated).flatten()
+    @property
+    def dissipated_energy(self) -> torch.Tensor:
+        """(n_objects,) float64: the energy the material updates have dissipated so far, per object."""
+        self._flush_dissipated()
+        return self._dissipated_total
+
+    def _flush_dissipated(self) -> None:
+        """Adds the pending dissipated energy densities (per particle, per unit rest volume, summed
+        over the substeps since the last flush) times the rest volumes to the per-object totals."""
+        pending, self._dissipated_pending = self._dissipated_pending, None
+        if pending is None:
+            return
+        taken = torch.nonzero(pending).flatten()
         if len(taken) == 0:
             return
         p = self.particles
-        energy = dissipated[taken].double() * p.rest_volume[taken].double()
-        self.dissipated_energy.index_add_(0, p.obj_id[taken].long(), energy)
+        energy = pending[taken].double() * p.rest_volume[taken].double()
+        self._dissipated_total.index_add_(0, p.obj_id[taken].long(), energy)
 
     def _particles_of(self, cls: type) -> torch.Tensor:
         """(N) bool, current order: the particles whose material's model is ``cls``."""
@@ -300,6 +325,7 @@ class CollisionMPM:
 
     def _apply_order(self, order: torch.Tensor) -> None:
         """Move every per-particle array so that new row i is old row order[i]."""
+        self._flush_dissipated()
         self.particles = self.particles.take(order)
         self.state = self.state.take(order)
         self.grid_id = torch.index_select(self.grid_id, 0, order)
@@ -481,4 +507,5 @@ class CollisionMPM:
         if dissipated.shape != (self.n_objects,):
             raise ValueError(f"checkpoint 'dissipated_energy' has shape {dissipated.shape}, the scene has "
                              f"{self.n_objects} objects")
-        self.dissipated_energy = torch.as_tensor(dissipated, dtype=torch.float64, device=self.device)
+        self._dissipated_total = torch.as_tensor(dissipated, dtype=torch.float64, device=self.device)
+        self._dissipated_pending = None
