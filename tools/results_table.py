@@ -27,6 +27,8 @@ from scene_pieces import markdown as pieces_table  # noqa: E402  (the benchmark'
 
 SPHERE_FILES = ("brittle_sphere_gf2.json", "brittle_sphere_gf3.5.json", "brittle_sphere_gf5.json")
 NOTCHED_BAR_FILE = "brittle_bar_notched.json"
+PLATE_FILES = ("notched_plate_64.json", "notched_plate_128.json")
+DISC_FILE = "brittle_disc.json"
 
 
 def load(name: str) -> dict:
@@ -70,6 +72,25 @@ def notched_bar_row() -> str:
             f"{bar['ligament']:g}` |")
 
 
+def plate_row() -> str:
+    """The README row of the notched plate at its finest grid: the angle of each tip's crack."""
+    run = max((run for name in PLATE_FILES for run in load(name)["runs"]), key=lambda run: run["grid"])
+    angles = " / ".join("none" if crack["angle_deg"] is None else f"{crack['angle_deg']:.0f}°"
+                        for crack in run["cracks"])
+    return (f"| edge-notched plate struck between its notches at {run['speed']:g} m/s (Kalthoff and Winkler; "
+            f"about 70° in experiments), grid {run['grid']}: angle of the crack from each notch tip | {angles} | "
+            f"`benchmarks/notched_plate.py` |")
+
+
+def disc_row() -> str:
+    """The README row of the spun disc above its burst speed (uniform strength)."""
+    disc = load(DISC_FILE)
+    run = max((run for run in disc["runs"] if run["weibull_m"] == 0), key=lambda run: run["ratio"])
+    return (f"| free brittle disc suddenly spun at {run['ratio']:g} × its burst speed, grid {run['grid']}: pieces of "
+            f"≥ 1 % / completely damaged | {run['pieces']} / {run['cracked_share']:.0%} | "
+            f"`benchmarks/brittle_disc.py` |")
+
+
 def readme_block() -> list[str]:
     """The README's one results table: each row names the benchmark whose JSON holds the figure."""
     spheres, strong = _sphere_runs()
@@ -106,6 +127,8 @@ def readme_block() -> list[str]:
         f"| brittle bar pulled apart at {bar_top['factor']:g} × its strength, grid {bar_fine}: pieces | "
         f"{bar_top['pieces']} | `benchmarks/brittle_bar.py` |",
         notched_bar_row(),
+        plate_row(),
+        disc_row(),
         *mpm_rows(mpm),
         f"| step time with cracks opening (`fragments: true`) / without, NACC, {largest:,} particles | "
         f"× {fragment_cost:.2f} | `benchmarks/bench_mpm.py` |",
@@ -147,14 +170,55 @@ def profile_block() -> list[str]:
 
 
 def bar_block(name: str = "brittle_bar.json") -> list[str]:
-    """The runs of one ``benchmarks/brittle_bar.py`` JSON (a plain or a notched bar), one row each."""
+    """The runs of one ``benchmarks/brittle_bar.py`` JSON (a plain or a notched bar), one row each; a
+    notched bar's rows also give how wide its damaged band is."""
     bar = load(name)
-    lines = ["| grid | strength multiple | pieces | damaged particles | fracture energy per broken area / G_f |",
-             "|---|---|---|---|---|"]
+    notched = "ligament" in bar
+    head = "| grid | strength multiple | pieces | damaged particles | fracture energy per broken area / G_f |"
+    rule = "|---|---|---|---|---|"
+    if notched:
+        head += " damaged particles within one cell of the crack | band width holding 90 % of them (cells) |"
+        rule += "---|---|"
+    lines = [head, rule]
     for run in bar["runs"]:
         ratio = run["energy_per_broken_area_over_Gf"]
-        lines.append(f"| {run['grid']} ({run['particles']:,} particles) | {run['factor']:g} | {run['pieces']} | "
-                     f"{run['damaged_particles']:,} | {'—' if ratio is None else f'{ratio:.2f}'} |")
+        row = (f"| {run['grid']} ({run['particles']:,} particles) | {run['factor']:g} | {run['pieces']} | "
+               f"{run['damaged_particles']:,} | {'—' if ratio is None else f'{ratio:.2f}'} |")
+        if notched:
+            band = run["band"]
+            row += (" — | — |" if band["within_one_cell"] is None
+                    else f" {band['within_one_cell']:.0%} | {band['width_90_cells']:.1f} |")
+        lines.append(row)
+    return lines
+
+
+def plate_block() -> list[str]:
+    """``benchmarks/notched_plate.py`` at each grid: per notch tip, the crack that leaves it."""
+    lines = ["| grid (plate particles) | impact speed | notch tip | crack angle to the notch | damaged particles "
+             "within one cell of the crack line | crack length | plate particles damaged / completely |",
+             "|---|---|---|---|---|---|---|"]
+    for name in PLATE_FILES:
+        for run in load(name)["runs"]:
+            for tip, crack in zip(("upper", "lower"), run["cracks"]):
+                angle = "no crack" if crack["angle_deg"] is None else f"{crack['angle_deg']:.0f}°"
+                within = "—" if crack["within_one_cell"] is None else f"{crack['within_one_cell']:.0%}"
+                lines.append(f"| {run['grid']} ({run['particles']:,}) | {run['speed']:g} m/s | {tip} | {angle} | "
+                             f"{within} | {crack['length'] * 100:.1f} cm | {run['damaged_particles']:,} / "
+                             f"{run['cracked_particles']:,} |")
+    return lines
+
+
+def disc_block() -> list[str]:
+    """``benchmarks/brittle_disc.py``: each run's pieces and damage at the end."""
+    disc = load(DISC_FILE)
+    lines = ["| strength | spin / burst speed | pieces of ≥ 1 % | largest piece | completely damaged | "
+             "any damage | momentum drift | energy peak / start |",
+             "|---|---|---|---|---|---|---|---|"]
+    for run in disc["runs"]:
+        strength = "uniform" if run["weibull_m"] == 0 else f"Weibull m = {run['weibull_m']:g}"
+        lines.append(f"| {strength} | {run['ratio']:g} | {run['pieces']} | {run['largest_share']:.0%} | "
+                     f"{run['cracked_share']:.0%} | {run['damaged_share']:.1%} | {run['momentum_drift']:.1e} | "
+                     f"{run['energy_peak_over_start']:.4f} |")
     return lines
 
 
@@ -210,6 +274,7 @@ BLOCKS = {
     "docs/results.md": {"brittle-sphere": lambda: sphere_table([load(name) for name in SPHERE_FILES]),
                         "gaussianfluent": gaussianfluent_block,
                         "brittle-bar": bar_block, "brittle-bar-notched": lambda: bar_block(NOTCHED_BAR_FILE),
+                        "notched-plate": plate_block, "brittle-disc": disc_block,
                         "mpm-step": mpm_block, "mpm-profile": profile_block, **pieces_blocks("demo_default", "demo_quick")},
     "docs/materials.md": pieces_blocks("teapot_ground_porcelain", "teapot_table_porcelain",
                                        "bowl_teapot_porcelain", "ficus_table_porcelain"),
