@@ -8,8 +8,8 @@ import math
 import numpy as np
 import torch
 
-from fracture_gs.testing.brittle_scenes import (GLASS, PlateGeometry, band_profile, burst_speed, crack_from_tip,
-                                                notched_plate, spun_disc)
+from fracture_gs.testing.brittle_scenes import (GLASS, PlateGeometry, advance_sampled, band_profile, burst_speed,
+                                                crack_from_tip, notched_plate, spun_disc)
 
 DX = 0.01
 
@@ -77,5 +77,8 @@ def test_a_disc_spun_below_its_burst_speed_takes_no_damage() -> None:
     x, v = solver.input_particles.x, solver.input_particles.v
     r = x[:, :2] - x[:, :2].double().mean(0).float()   # about the disc's centre of mass
     assert torch.allclose(v[:, :2], omega * torch.stack([-r[:, 1], r[:, 0]], 1), atol=1e-3 * omega * 0.2)
-    solver.advance(0.004)
+    start, samples, peak = advance_sampled(solver, [0.002, 0.002])
     assert float(solver.state.material_state[:, 0].max()) == 0.0
+    assert len(samples) == 2 and abs(solver.state.time - 0.004) < 1e-12
+    assert peak <= 1.0 + 1e-6 and peak == max(1.0, *((d["total_energy"] + d["dissipated_energy"])
+                                                     / start["total_energy"] for d in samples))

@@ -3,10 +3,10 @@
 The solver's substep is the CFL step dt = cfl Δx / (c_max + |v|_max) (``CollisionMPM.stable_dt``),
 c_max the largest P-wave speed of the deforming objects' materials (a rigid object sets none) and
 |v|_max the largest particle speed. At the start of a run both are known, so the substeps of the
-scene's ``frames × frame_dt`` can be counted before the first step: a scene that would take more than ``bounds.SUBSTEPS_MAX`` of them
-(a light, stiff material whose wave speed makes the step nanoseconds long, or days of simulated
-time) is refused with one line instead of running for ever. Gravity and impacts only make the
-particles faster, so the count is a lower bound.
+scene's ``frames × frame_dt`` can be counted before the first step: a scene that would take more
+than ``bounds.SUBSTEPS_MAX`` of them (a light, stiff material whose wave speed makes the step
+nanoseconds long, or days of simulated time) is refused with one line instead of running for ever.
+Gravity and impacts only make the particles faster, so the count is a lower bound.
 """
 from __future__ import annotations
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,6 +45,21 @@ def add_run_arguments(parser: argparse.ArgumentParser, duration: float) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--dump", type=Path, default=None,
                         help="folder for each run's last state (npz: x, damage, normal, piece labels)")
+
+
+def advance_sampled(solver: CollisionMPM, steps: Sequence[float]) -> tuple[dict, list[dict], float]:
+    """Advances ``solver`` by each of ``steps`` (seconds) in turn. Returns the diagnostics at the start
+    and after each step, and the largest kinetic + elastic + gravitational + dissipated energy after
+    a step over the total energy at the start (never above 1 for a sound run)."""
+    start = solver.diagnostics()
+    samples = []
+    peak = start["total_energy"]
+    for step in steps:
+        solver.advance(step)
+        diagnostics = solver.diagnostics()
+        peak = max(peak, diagnostics["total_energy"] + diagnostics["dissipated_energy"])
+        samples.append(diagnostics)
+    return start, samples, peak / start["total_energy"]
 
 
 def solver_of(built: BuiltScene, seed: int) -> CollisionMPM:
