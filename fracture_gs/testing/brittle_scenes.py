@@ -43,8 +43,16 @@ def add_run_arguments(parser: argparse.ArgumentParser, duration: float) -> None:
     Weibull strengths) and --dump (a folder for each run's last state)."""
     parser.add_argument("--duration", type=float, default=duration, help="simulated time (s)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--dump", type=Path, default=None,
+    parser.add_argument("--dump", type=_dump_folder, default=None,
                         help="folder for each run's last state (npz: x, damage, normal, piece labels)")
+
+
+def _dump_folder(text: str) -> Path:
+    """--dump's value: a folder, or a path where one can be made (not an existing file)."""
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} exists and is not a folder")
+    return path
 
 
 def advance_sampled(solver: CollisionMPM, steps: Sequence[float]) -> tuple[dict, list[dict], float]:

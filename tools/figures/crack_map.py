@@ -26,11 +26,21 @@ from matplotlib.colors import LinearSegmentedColormap  # noqa: E402
 PARTIAL = LinearSegmentedColormap.from_list("partial", ["#f2d64b", "#d7301f"])
 
 
-def draw(axis: plt.Axes, dump: Path, title: str) -> dict:
+def load_dump(dump: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(positions to draw (n, 3), damage (n,)) of a dump; ValueError if it is not one."""
+    try:
+        with np.load(dump) as data:
+            points = data["rest"] if "rest" in data else data["x"]
+            damage = data["damage"]
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{dump}: not a dump of notched_plate.py / brittle_disc.py --dump ({exc})") from None
+    if points.ndim != 2 or points.shape[1] < 2 or damage.shape != (len(points),):
+        raise ValueError(f"{dump}: positions {points.shape} and damage {damage.shape} do not match")
+    return points, damage
+
+
+def draw(axis: plt.Axes, dump: Path, points: np.ndarray, damage: np.ndarray, title: str) -> dict:
     """One panel; returns the particle counts it drew."""
-    data = np.load(dump)
-    points = data["rest"] if "rest" in data else data["x"]
-    damage = data["damage"]
     intact, partial, complete = damage <= 0, (damage > 0) & (damage < 1), damage >= 1
     size = 40000.0 / max(len(points), 1)
     axis.scatter(points[intact, 0], points[intact, 1], s=size, c="#c8c8c8", linewidths=0)
@@ -58,8 +68,13 @@ def main() -> None:
     missing = [str(dump) for dump in args.dumps if not dump.is_file()]
     if missing:
         parser.error(f"no such dump: {missing[0]}")
+    try:
+        loaded = [load_dump(dump) for dump in args.dumps]
+    except ValueError as exc:
+        parser.error(str(exc))
     figure, axes = plt.subplots(1, len(args.dumps), figsize=(args.size * len(args.dumps), args.size), squeeze=False)
-    counts = [draw(axis, dump, title) for axis, dump, title in zip(axes[0], args.dumps, titles)]
+    counts = [draw(axis, dump, points, damage, title)
+              for axis, dump, (points, damage), title in zip(axes[0], args.dumps, loaded, titles)]
     figure.tight_layout()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(args.out, dpi=110)
