@@ -53,30 +53,33 @@ struct AxisWeights {
   float dw[3];
 };
 
+// a * b rounded to float, out of reach of FMA contraction (-ffp-contract=fast, nvcc's default
+// fmad): __fmul_rn on the device, an empty asm on the host, which costs no instruction. Left to
+// itself the compiler fuses a product with the add that follows it in some places and not in
+// others, so one formula inlined into two kernels rounds two ways.
+HOST_DEVICE inline float product_rn(float a, float b) {
+#if defined(__CUDA_ARCH__)
+  return __fmul_rn(a, b);
+#elif defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
+  float p = a * b;
+  asm("" : "+x"(p));
+  return p;
+#elif defined(__GNUC__) && defined(__aarch64__)
+  float p = a * b;
+  asm("" : "+w"(p));
+  return p;
+#else
+  volatile float p = a * b;
+  return p;
+#endif
+}
+
 // Grid coordinate X = (x - lower) * inv_dx of a position along one axis, rounded to float
 // before anything else uses it. Every kernel, and the torch twin, must find the same stencil base
 // floor(X - 0.5) for a particle: the binning sorts particles by it and P2G writes into the window
-// of the block it names. Left to itself the compiler fuses the product with the - 0.5 (or with
-// f = X - base) into one FMA in some places and not in others (-ffp-contract=fast, nvcc's
-// default fmad), and a particle within a rounding of a block boundary then gets two different
-// bases; so the product is kept out of reach of contraction (__fmul_rn on the device, an empty
-// asm on the host, which costs no instruction).
-HOST_DEVICE inline float grid_coordinate(float x, float lower, float inv_dx) {
-#if defined(__CUDA_ARCH__)
-  return __fmul_rn(x - lower, inv_dx);
-#elif defined(__GNUC__) && (defined(__x86_64__) || defined(__i386__))
-  float X = (x - lower) * inv_dx;
-  asm("" : "+x"(X));
-  return X;
-#elif defined(__GNUC__) && defined(__aarch64__)
-  float X = (x - lower) * inv_dx;
-  asm("" : "+w"(X));
-  return X;
-#else
-  volatile float X = (x - lower) * inv_dx;
-  return X;
-#endif
-}
+// of the block it names; a product fused with the - 0.5 (or with f = X - base) in one kernel and
+// not in another would give a particle within a rounding of a block boundary two different bases.
+HOST_DEVICE inline float grid_coordinate(float x, float lower, float inv_dx) { return product_rn(x - lower, inv_dx); }
 
 // First stencil node along one axis of a particle at grid coordinate X (grid_coordinate; X - 0.5
 // is exact below 2^23).
@@ -87,9 +90,11 @@ HOST_DEVICE inline AxisWeights axis_weights(float X, float inv_dx) {
   a.base = axis_base(X);
   a.f = X - (float)a.base;
   float f = a.f;
-  a.w[0] = 0.5f * (1.5f - f) * (1.5f - f);
-  a.w[1] = 0.75f - (f - 1.f) * (f - 1.f);
-  a.w[2] = 0.5f * (f - 0.5f) * (f - 0.5f);
+  // The squares are rounded before the 0.75 - ...: P2G and G2P must weigh a particle exactly alike
+  // (a moving body's momentum drifts by a few 1e-8 of itself per substep where they do not).
+  a.w[0] = 0.5f * product_rn(1.5f - f, 1.5f - f);
+  a.w[1] = 0.75f - product_rn(f - 1.f, f - 1.f);
+  a.w[2] = 0.5f * product_rn(f - 0.5f, f - 0.5f);
   a.dw[0] = -(1.5f - f) * inv_dx;
   a.dw[1] = -2.f * (f - 1.f) * inv_dx;
   a.dw[2] = (f - 0.5f) * inv_dx;

@@ -75,10 +75,13 @@ HOST_DEVICE inline float particle_speed_sq(long long q, const G2POutputs& out) {
   return v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
 }
 
-// Grid update of one node: velocity = momentum / mass + dt g, or zero without mass.
+// Grid update of one node: velocity = (momentum + mass dt g) / mass, or zero without mass. Gravity is
+// added to the momentum: every node of a body in free flight has the same velocity, so a dt g added
+// to the velocity would round the same way on every node, and the body would gain or lose a few
+// 1e-3 of gravity's impulse each substep (the momentum's rounding differs from node to node).
 HOST_DEVICE inline void grid_node_velocity(float mass, const float* momentum, float dt, const float* gravity,
                                            float mass_eps, float* velocity) {
-  for (int d = 0; d < 3; ++d) velocity[d] = mass > mass_eps ? momentum[d] / mass + dt * gravity[d] : 0.f;
+  for (int d = 0; d < 3; ++d) velocity[d] = mass > mass_eps ? (momentum[d] + mass * (dt * gravity[d])) / mass : 0.f;
 }
 
 // The end of a G2P gather, given the particle's new velocity vp and APIC matrix C: advects and

@@ -227,10 +227,12 @@ def fragment_clear(keys: torch.Tensor, geometry: GridGeometry, grid: GridFields)
 
 
 def grid_update(grid: GridFields, dt: float, gravity: torch.Tensor, mass_eps: float) -> None:
-    """Velocity = momentum / mass + dt g on nodes with mass, zero elsewhere."""
+    """Velocity = (momentum + mass dt g) / mass on nodes with mass, zero elsewhere. Gravity is added to
+    the momentum: added to a velocity that every node of a translating body shares, its rounding
+    would be the same on every node and bias the body's momentum."""
     has_mass = grid.mass > mass_eps
-    velocity = grid.momentum / torch.where(has_mass, grid.mass, torch.ones_like(grid.mass))[..., None]
-    velocity = velocity + dt * gravity.to(velocity)
+    momentum = grid.momentum + grid.mass[..., None] * (dt * gravity.to(grid.momentum))
+    velocity = momentum / torch.where(has_mass, grid.mass, torch.ones_like(grid.mass))[..., None]
     grid.velocity.copy_(torch.where(has_mass[..., None], velocity, torch.zeros_like(velocity)))
 
 
