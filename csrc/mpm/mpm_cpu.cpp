@@ -8,6 +8,9 @@
 #include <cstring>
 #include <limits>
 #include <vector>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include "mpm/constitutive_batch.h"
 #include "mpm/cpu_vector.h"
@@ -223,7 +226,8 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
 // rides in the same multiply-adds). A node update is then three 8-wide multiply-adds; the window
 // (16 KB) stays in L1 and is added to the grid fields once per cell. The last lane sums m D
 // (damage, csrc/common/mpm_fragments.h) for the fragment partition; it is zero without it. Cells next to a contact
-// block also fill a second window of 4-float records with the mass gradient.
+// block also fill a second window of 4-float records with the mass gradient. With AVX-512, cells
+// that need mass and momentum only take p2g_cell_window_mass (4-float records, below).
 constexpr int kWindow = 2 * kBlock;                        // window nodes per axis
 constexpr int kWindowNodes = kWindow * kWindow * kWindow;
 
@@ -252,17 +256,13 @@ inline bool starts_in_block(int lx, int ly, int lz) {
   return ((unsigned)lx < (unsigned)kBlock) & ((unsigned)ly < (unsigned)kBlock) & ((unsigned)lz < (unsigned)kBlock);
 }
 
-// Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
-// the window's first node. kWithContact: also the mass gradient into `gradient_window` (zeroed
-// here; lanes 0-2), which only the contact pass reads. Returns the smallest index of a particle
-// of the cell whose stencil does not start in the cell's block (it is skipped: its nodes lie
-// outside the window), or -1.
-template <bool kWithContact>
-long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
-                          const int origin[3], Record* FGS_RESTRICT window, Lane4* FGS_RESTRICT gradient_window) {
-  std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
-  if constexpr (kWithContact) std::memset(static_cast<void*>(gradient_window), 0, sizeof(Lane4) * kWindowNodes);
-  const float dx = geo.dx;
+// Runs scatter(q, aw, lx, ly, lz, m, A) for each particle q of a cell whose stencil starts in the
+// cell's block (aw: its stencil weights; l: its first stencil node relative to `origin`; m its mass,
+// A its APIC affine matrix). Returns the smallest index of a particle of the cell whose stencil does
+// not start there (skipped), or -1.
+template <class Scatter>
+long long for_cell_particles(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                             const int origin[3], const Scatter& scatter) {
   const int end = bins.cell_start[cell + 1];
   long long misplaced = -1;
   for (int it = bins.cell_start[cell]; it < end; ++it) {
@@ -278,6 +278,24 @@ long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& 
     const float m = p.mass[q];
     float A[9];
     apic_affine(p.C + 9 * q, p.stress + 9 * q, m, p.rest_volume[q], dt, geo.inv_dx, A);
+    scatter(q, aw, lx, ly, lz, m, A);
+  }
+  return misplaced;
+}
+
+// Scatters the particles of one cell into `window` (zeroed here). origin: node coordinates of
+// the window's first node. kWithContact: also the mass gradient into `gradient_window` (zeroed
+// here; lanes 0-2), which only the contact pass reads. Returns the smallest index of a particle
+// of the cell whose stencil does not start in the cell's block (it is skipped: its nodes lie
+// outside the window), or -1.
+template <bool kWithContact>
+long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo, float dt,
+                          const int origin[3], Record* FGS_RESTRICT window, Lane4* FGS_RESTRICT gradient_window) {
+  std::memset(static_cast<void*>(window), 0, sizeof(Record) * kWindowNodes);
+  if constexpr (kWithContact) std::memset(static_cast<void*>(gradient_window), 0, sizeof(Lane4) * kWindowNodes);
+  const float dx = geo.dx;
+  return for_cell_particles(bins, cell, p, geo, dt, origin, [&](int q, const AxisWeights aw[3], int lx, int ly, int lz,
+                                                                float m, const float A[9]) {
     const float damage = p.damaged ? m * particle_damage(p.damaged[q]) : 0.f;
     const ParticleRecords records = particle_records(m, p.v + 3 * q, A, damage);  // csrc/mpm/p2g_records.h
     for (int a = 0; a < 3; ++a) {
@@ -292,8 +310,7 @@ long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& 
         }
       }
     }
-  }
-  return misplaced;
+  });
 }
 
 // Adds a cell's window into the grid fields of its object (blocks outside the grid are skipped:
@@ -334,6 +351,85 @@ void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRI
       }
 }
 
+#if defined(__AVX512F__)
+// P2G of a cell that needs mass and momentum only (no contact block in its window, no fragments):
+// 4-float node records [mass, momentum xyz], so that a stencil column's three nodes (12 contiguous
+// floats of the window) fit one AVX-512 register and a column costs one multiply and one
+// multiply-add where p2g_cell_window spends two per node. The records are the same formula,
+// node_record(c) = w_c in_plane + (w_c pz_c) along (csrc/mpm/p2g_records.h). Same return value
+// as p2g_cell_window; `window` (kWindowNodes x 4 floats) is zeroed here.
+using Vec16 = float __attribute__((vector_size(64)));
+constexpr __mmask16 kColumnLanes = 0x0FFF;  // three nodes of 4 floats
+
+// v in lanes 0-3, 4-7 and 8-11 (the three nodes of a column); zero in lanes 12-15.
+inline Vec16 three_nodes(Lane4 v) {
+  return (Vec16)_mm512_maskz_broadcast_f32x4(kColumnLanes, (__m128)v);
+}
+
+// v[c] in the four lanes of node c (c < 3); v[3] in lanes 12-15.
+inline Vec16 node_lanes(Lane4 v) {
+  const __m512i lanes = _mm512_set_epi32(3, 3, 3, 3, 2, 2, 2, 2, 1, 1, 1, 1, 0, 0, 0, 0);
+  return (Vec16)_mm512_permutexvar_ps(lanes, _mm512_castps128_ps512((__m128)v));
+}
+
+long long p2g_cell_window_mass(const BinsView& bins, int cell, const ParticleArrays& p, const MPMGeometry& geo,
+                               float dt, const int origin[3], float* FGS_RESTRICT window) {
+  std::memset(static_cast<void*>(window), 0, sizeof(float) * 4 * kWindowNodes);
+  const float dx = geo.dx;
+  return for_cell_particles(bins, cell, p, geo, dt, origin, [&](int q, const AxisWeights aw[3], int lx, int ly, int lz,
+                                                                float m, const float A[9]) {
+    const float* v = p.v + 3 * q;
+    // The particle's record directions (particle_records, mass and momentum lanes) in each of the
+    // column's three nodes; lanes 12-15 are zero.
+    const Lane4 base4 = {m, m * v[0], m * v[1], m * v[2]};
+    const Lane4 affine_x4 = {0.f, A[0], A[3], A[6]}, affine_y4 = {0.f, A[1], A[4], A[7]};
+    const Lane4 affine_z4 = {0.f, A[2], A[5], A[8]};
+    const Vec16 base = three_nodes(base4), affine_x = three_nodes(affine_x4);
+    const Vec16 affine_y = three_nodes(affine_y4), affine_z = three_nodes(affine_z4);
+    Lane4 wz = {0.f, 0.f, 0.f, 0.f}, wz_pz = wz;
+    for (int c = 0; c < 3; ++c) {
+      wz[c] = aw[2].w[c];
+      wz_pz[c] = aw[2].w[c] * (((float)c - aw[2].f) * dx);
+    }
+    const Vec16 node_w = node_lanes(wz), node_w_pz = node_lanes(wz_pz);
+    for (int a = 0; a < 3; ++a) {
+      const float px = ((float)a - aw[0].f) * dx;
+      for (int b = 0; b < 3; ++b) {
+        const float py = ((float)b - aw[1].f) * dx;
+        const float wab = aw[0].w[a] * aw[1].w[b];
+        const Vec16 in_plane = wab * base + (wab * px) * affine_x + (wab * py) * affine_y;
+        const Vec16 along = wab * affine_z;
+        const Vec16 records = node_w * in_plane + node_w_pz * along;
+        float* row = window + 4 * (((lx + a) * kWindow + (ly + b)) * kWindow + lz);
+        const __m512 sum = _mm512_add_ps(_mm512_maskz_loadu_ps(kColumnLanes, row), (__m512)records);
+        _mm512_mask_storeu_ps(row, kColumnLanes, sum);
+      }
+    }
+  });
+}
+
+// Adds a window of p2g_cell_window_mass into the grid's mass and momentum (as p2g_flush_window).
+void p2g_flush_window_mass(const float* FGS_RESTRICT window, const int block_ijk[3], const GridShape& s,
+                           float* FGS_RESTRICT mass, float* FGS_RESTRICT momentum) {
+  for (int di = 0; di < 2; ++di)
+    for (int dj = 0; dj < 2; ++dj)
+      for (int dk = 0; dk < 2; ++dk) {
+        const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
+        if (bi >= s.bx || bj >= s.by || bk >= s.bz) continue;
+        const long long first = (long long)((bi * s.by + bj) * s.bz + bk) * kBlockNodes;
+        for (int li = 0; li < kBlock; ++li)
+          for (int lj = 0; lj < kBlock; ++lj) {
+            const float* src = window + 4 * (((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock);
+            const long long dst = first + (li * kBlock + lj) * kBlock;
+            for (int lk = 0; lk < kBlock; ++lk) {
+              mass[dst + lk] += src[4 * lk];
+              for (int d = 0; d < 3; ++d) momentum[3 * (dst + lk) + d] += src[4 * lk + 1 + d];
+            }
+          }
+      }
+}
+#endif
+
 }  // namespace
 
 BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
@@ -371,6 +467,11 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
   {
     std::vector<Record> window(kWindowNodes);  // per thread
     std::vector<Lane4> gradient_window(contact ? kWindowNodes : 0);
+#if defined(__AVX512F__)
+    // Cells without contact fields or fragment damage take the 4-float records.
+    const bool mass_only = grid.damage == nullptr && p.damaged == nullptr;
+    std::vector<float> window_mass(mass_only ? 4 * kWindowNodes : 0);
+#endif
     for (int color = 0; color < 8; ++color) {
       const int c_begin = bins.color_start[color], c_end = bins.color_start[color + 1];
 #pragma omp for schedule(dynamic, 2)
@@ -387,11 +488,20 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
                 const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
                 if (bi < s.bx && bj < s.by && bk < s.bz) near_contact |= contact[(bi * s.by + bj) * s.bz + bk] != 0;
               }
+        const long long grid_offset = (long long)grid_index * nodes;
+#if defined(__AVX512F__)
+        if (mass_only && !near_contact) {
+          const long long stray = p2g_cell_window_mass(bins, cell, p, geo, dt, origin, window_mass.data());
+          if (stray >= 0 && stray < misplaced) misplaced = stray;
+          p2g_flush_window_mass(window_mass.data(), block_ijk, s, grid.mass + grid_offset,
+                                grid.momentum + 3 * grid_offset);
+          continue;
+        }
+#endif
         const long long stray =
             near_contact ? p2g_cell_window<true>(bins, cell, p, geo, dt, origin, window.data(), gradient_window.data())
                          : p2g_cell_window<false>(bins, cell, p, geo, dt, origin, window.data(), nullptr);
         if (stray >= 0 && stray < misplaced) misplaced = stray;
-        const long long grid_offset = (long long)grid_index * nodes;
         p2g_flush_window(window.data(), gradient_window.data(), block_ijk, s, near_contact ? contact : nullptr,
                          grid.mass + grid_offset, grid.momentum + 3 * grid_offset,
                          grid.mass_gradient ? grid.mass_gradient + 3 * grid_offset : nullptr,
