@@ -596,13 +596,12 @@ struct ReferenceNodeVelocity {
 // ones per node. node_velocity(node index within one grid, side_bit of the stencil node) gives
 // the 3 floats to read: the object's grid, or with fragments the field (A or B) of q's side.
 // Same outputs as the scalar gathers; tested against the same torch twin.
+// aw: the particle's stencil weights (stencil_weights).
 template <class NodeVelocity>
-bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+bool g2p_gather_cpu(long long q, const AxisWeights aw[3], const G2PInputs& in, const MPMGeometry& geo, float dt,
                     const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
-  AxisWeights aw[3];
-  stencil_weights(in.x + 3 * q, geo, aw);
   int oz[3];
   float wz_pz[3];
   for (int c = 0; c < 3; ++c) {
@@ -642,12 +641,97 @@ bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, fl
   return g2p_advect(q, in, dt, velocity_p, C, out, F_trial);
 }
 
+template <class NodeVelocity>
+bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
+                    const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
+  AxisWeights aw[3];
+  stencil_weights(in.x + 3 * q, geo, aw);
+  return g2p_gather_cpu(q, aw, in, geo, dt, node_velocity, out, F_trial);
+}
+
+}  // namespace
+
+namespace {
+
+// Particles that share a stencil base read the same 27 node velocities: G2P gathers up to
+// kGroupLanes such particles, consecutive in memory (spatial_order puts a cell's particles
+// together), at once, one per lane of an 8-wide vector. Every node velocity is then one broadcast
+// for the whole group instead of one load per particle, and each multiply-add of
+// g2p_gather_cpu serves 8 particles. Runs shorter than kMinGroup go one by one.
+constexpr int kGroupLanes = 8;
+constexpr int kMinGroup = 3;
+using Vec8 = float __attribute__((vector_size(32)));
+
+struct GatherGroup {
+  long long first;  // the particles first .. first + count - 1
+  int count = 0;
+  int base[3];      // their common stencil base
+  float f[3][kGroupLanes];     // grid coordinate minus base, per axis and lane
+  float w[3][3][kGroupLanes];  // axis weights [axis][node][lane]
+  AxisWeights lane[kGroupLanes][3];  // each particle's stencil weights (a short run goes one by one)
+};
+
+// g2p_gather_cpu for the particles of `group` (all on the grid `velocity`, side A everywhere):
+// velocity and APIC matrix per lane into vp[3][lane] and C[9][lane].
+void g2p_gather_group(const GatherGroup& group, const MPMGeometry& geo, const float* velocity,
+                      float vp_out[3][kGroupLanes], float C_out[9][kGroupLanes]) {
+  const GridShape& s = geo.shape;
+  const float dx = geo.dx;
+  Vec8 w[3][3], f[3];
+  for (int d = 0; d < 3; ++d) {
+    __builtin_memcpy(&f[d], group.f[d], sizeof(Vec8));
+    for (int a = 0; a < 3; ++a) __builtin_memcpy(&w[d][a], group.w[d][a], sizeof(Vec8));
+  }
+  int oz[3];
+  Vec8 wz_pz[3];
+  for (int c = 0; c < 3; ++c) {
+    oz[c] = offset_z(group.base[2] + c, s);
+    wz_pz[c] = w[2][c] * (((float)c - f[2]) * dx);
+  }
+  Vec8 vp[3] = {}, bx[3] = {}, by[3] = {}, bz[3] = {};  // B column k = sum w v (x_i - x_p)_k
+  for (int a = 0; a < 3; ++a) {
+    const int ox = offset_x(group.base[0] + a, s);
+    const Vec8 px = ((float)a - f[0]) * dx;
+    for (int b = 0; b < 3; ++b) {
+      const int oxy = ox + offset_y(group.base[1] + b, s);
+      const Vec8 py = ((float)b - f[1]) * dx;
+      Vec8 column[3] = {}, column_z[3] = {};
+      for (int c = 0; c < 3; ++c) {
+        const float* v = velocity + 3 * (long long)(oxy + oz[c]);
+        for (int d = 0; d < 3; ++d) {
+          column[d] += w[2][c] * v[d];
+          column_z[d] += wz_pz[c] * v[d];
+        }
+      }
+      const Vec8 wab = w[0][a] * w[1][b];
+      const Vec8 wab_px = wab * px, wab_py = wab * py;
+      for (int d = 0; d < 3; ++d) {
+        vp[d] += wab * column[d];
+        bx[d] += wab_px * column[d];
+        by[d] += wab_py * column[d];
+        bz[d] += wab * column_z[d];
+      }
+    }
+  }
+  const float apic_scale = 4.f * geo.inv_dx * geo.inv_dx;
+  for (int d = 0; d < 3; ++d) {
+    const Vec8 cx = apic_scale * bx[d], cy = apic_scale * by[d], cz = apic_scale * bz[d];
+    __builtin_memcpy(vp_out[d], &vp[d], sizeof(Vec8));
+    __builtin_memcpy(C_out[3 * d], &cx, sizeof(Vec8));
+    __builtin_memcpy(C_out[3 * d + 1], &cy, sizeof(Vec8));
+    __builtin_memcpy(C_out[3 * d + 2], &cz, sizeof(Vec8));
+  }
+}
+
 }  // namespace
 
 G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float dt,
                  const float* grid_velocity, G2POutputs out, const FragmentView* frag) {
   long long clamped = 0, first_bad = n;
   float max_speed_sq = 0.f;
+  const long long nodes = geo.shape.nodes();
+  constexpr long long kChunk = 512;
+  const long long n_chunks = (n + kChunk - 1) / kChunk;
 #pragma omp parallel reduction(+ : clamped) reduction(min : first_bad) reduction(max : max_speed_sq)
   {
     // Gather each particle, hand F_trial to the thread's constitutive stream, store what it returns.
@@ -656,24 +740,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       g2p_store_material(q, in, out, F_E, state, tau, dissipated);
       if (!finite_sum9(F_E)) first_bad = q < first_bad ? q : first_bad;
     };
-    // Dynamic chunks: the constitutive cost varies between particles (eigen-path lanes); a
-    // particle's result depends only on its own inputs, so the schedule cannot change any bit.
-#pragma omp for schedule(dynamic, 512) nowait
-    for (long long q = 0; q < n; ++q) {
-      float F_trial[9];
-      const bool split = frag != nullptr && frag->split_particle[q] != 0;
-      const long long nodes = geo.shape.nodes();
-      const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[q] * nodes;
-      const uint32_t mask = split && frag->side_mask != nullptr ? (uint32_t)frag->side_mask[q] : 0u;
-      bool was_clamped;
-      if (split && frag->side_mask == nullptr)
-        was_clamped = g2p_gather_cpu(
-            q, in, geo, dt, ReferenceNodeVelocity{{grid_velocity, frag, in.grid_id[q], q, nodes}}, out, F_trial);
-      else if (mask != 0)  // side B somewhere in the stencil
-        was_clamped = g2p_gather_cpu(q, in, geo, dt, MaskedNodeVelocity{own_grid, 3 * frag->n_fields * nodes, mask},
-                                     out, F_trial);
-      else  // no fragments, or side A at every split node it reaches: the object's own grid
-        was_clamped = g2p_gather_cpu(q, in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
+    // After particle q's gather (x, v, C written, F_trial computed): health, then the material.
+    auto finish_particle = [&](long long q, bool was_clamped, const float F_trial[9]) {
       clamped += was_clamped ? 1 : 0;
       const float* xq = out.x + 3 * q;
       const float* vq = out.v + 3 * q;
@@ -687,6 +755,84 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       }
       stream.push(q, F_trial, in.state + (long long)in.state_stride * q, in.state_stride, g2p_material_row(q, in),
                   store);
+    };
+    // One particle on its own (every kind of fragment reading).
+    auto gather_one = [&](long long q) {
+      float F_trial[9];
+      const bool split = frag != nullptr && frag->split_particle[q] != 0;
+      const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[q] * nodes;
+      const uint32_t mask = split && frag->side_mask != nullptr ? (uint32_t)frag->side_mask[q] : 0u;
+      bool was_clamped;
+      if (split && frag->side_mask == nullptr)
+        was_clamped = g2p_gather_cpu(
+            q, in, geo, dt, ReferenceNodeVelocity{{grid_velocity, frag, in.grid_id[q], q, nodes}}, out, F_trial);
+      else if (mask != 0)  // side B somewhere in the stencil
+        was_clamped = g2p_gather_cpu(q, in, geo, dt, MaskedNodeVelocity{own_grid, 3 * frag->n_fields * nodes, mask},
+                                     out, F_trial);
+      else  // no fragments, or side A at every split node it reaches: the object's own grid
+        was_clamped = g2p_gather_cpu(q, in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
+      finish_particle(q, was_clamped, F_trial);
+    };
+    GatherGroup group;
+    auto flush_group = [&]() {
+      if (group.count >= kMinGroup) {
+        float vp[3][kGroupLanes], C[9][kGroupLanes];
+        const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[group.first] * nodes;
+        g2p_gather_group(group, geo, own_grid, vp, C);
+        for (int l = 0; l < group.count; ++l) {
+          const long long q = group.first + l;
+          const float velocity_p[3] = {vp[0][l], vp[1][l], vp[2][l]};
+          float C_q[9], F_trial[9];
+          for (int i = 0; i < 9; ++i) C_q[i] = C[i][l];
+          const bool was_clamped = g2p_advect(q, in, dt, velocity_p, C_q, out, F_trial);
+          finish_particle(q, was_clamped, F_trial);
+        }
+      } else {
+        for (int l = 0; l < group.count; ++l) {
+          const long long q = group.first + l;
+          float F_trial[9];
+          const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[q] * nodes;
+          const bool was_clamped =
+              g2p_gather_cpu(q, group.lane[l], in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
+          finish_particle(q, was_clamped, F_trial);
+        }
+      }
+      group.count = 0;
+    };
+    // Dynamic chunks of kChunk particles: the constitutive cost varies between particles
+    // (eigen-path lanes). Groups never cross a chunk, and a particle's result depends only on its
+    // own inputs and on the run of particles around it in memory, so the schedule and the number
+    // of threads cannot change any bit.
+#pragma omp for schedule(dynamic, 1) nowait
+    for (long long chunk = 0; chunk < n_chunks; ++chunk) {
+      const long long end = std::min(n, (chunk + 1) * kChunk);
+      for (long long q = chunk * kChunk; q < end; ++q) {
+        // A particle joins the group if it reads its own object grid only (no fragment side B)
+        // and has the group's grid and stencil base.
+        const bool plain = frag == nullptr || frag->split_particle[q] == 0 ||
+                           (frag->side_mask != nullptr && frag->side_mask[q] == 0);
+        if (!plain) {
+          flush_group();
+          gather_one(q);
+          continue;
+        }
+        AxisWeights aw[3];
+        stencil_weights(in.x + 3 * q, geo, aw);
+        const bool joins = group.count > 0 && group.count < kGroupLanes && in.grid_id[q] == in.grid_id[group.first] &&
+                           aw[0].base == group.base[0] && aw[1].base == group.base[1] && aw[2].base == group.base[2];
+        if (!joins) {
+          flush_group();
+          group.first = q;
+          for (int d = 0; d < 3; ++d) group.base[d] = aw[d].base;
+        }
+        const int l = group.count++;
+        for (int d = 0; d < 3; ++d) group.lane[l][d] = aw[d];
+        for (int d = 0; d < 3; ++d) {
+          group.f[d][l] = aw[d].f;
+          for (int a = 0; a < 3; ++a) group.w[d][a][l] = aw[d].w[a];
+        }
+      }
+      flush_group();
     }
     stream.finish(store);
   }
