@@ -596,12 +596,13 @@ struct ReferenceNodeVelocity {
 // ones per node. node_velocity(node index within one grid, side_bit of the stencil node) gives
 // the 3 floats to read: the object's grid, or with fragments the field (A or B) of q's side.
 // Same outputs as the scalar gathers; tested against the same torch twin.
-// aw: the particle's stencil weights (stencil_weights).
 template <class NodeVelocity>
-bool g2p_gather_cpu(long long q, const AxisWeights aw[3], const G2PInputs& in, const MPMGeometry& geo, float dt,
+bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
                     const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
+  AxisWeights aw[3];
+  stencil_weights(in.x + 3 * q, geo, aw);
   int oz[3];
   float wz_pz[3];
   for (int c = 0; c < 3; ++c) {
@@ -641,14 +642,6 @@ bool g2p_gather_cpu(long long q, const AxisWeights aw[3], const G2PInputs& in, c
   return g2p_advect(q, in, dt, velocity_p, C, out, F_trial);
 }
 
-template <class NodeVelocity>
-bool g2p_gather_cpu(long long q, const G2PInputs& in, const MPMGeometry& geo, float dt,
-                    const NodeVelocity& node_velocity, const G2POutputs& out, float F_trial[9]) {
-  AxisWeights aw[3];
-  stencil_weights(in.x + 3 * q, geo, aw);
-  return g2p_gather_cpu(q, aw, in, geo, dt, node_velocity, out, F_trial);
-}
-
 }  // namespace
 
 namespace {
@@ -657,7 +650,8 @@ namespace {
 // kGroupLanes such particles, consecutive in memory (spatial_order puts a cell's particles
 // together), at once, one per lane of an 8-wide vector. Every node velocity is then one broadcast
 // for the whole group instead of one load per particle, and each multiply-add of
-// g2p_gather_cpu serves 8 particles. Runs shorter than kMinGroup go one by one.
+// g2p_gather_cpu serves 8 particles; the weights, the advection and F_trial run on the lanes too.
+// Runs shorter than kMinGroup go one by one.
 constexpr int kGroupLanes = 8;
 constexpr int kMinGroup = 3;
 using Vec8 = float __attribute__((vector_size(32)));
@@ -666,21 +660,38 @@ struct GatherGroup {
   long long first;  // the particles first .. first + count - 1
   int count = 0;
   int base[3];      // their common stencil base
-  float f[3][kGroupLanes];     // grid coordinate minus base, per axis and lane
-  float w[3][3][kGroupLanes];  // axis weights [axis][node][lane]
-  AxisWeights lane[kGroupLanes][3];  // each particle's stencil weights (a short run goes one by one)
 };
 
-// g2p_gather_cpu for the particles of `group` (all on the grid `velocity`, side A everywhere):
-// velocity and APIC matrix per lane into vp[3][lane] and C[9][lane].
-void g2p_gather_group(const GatherGroup& group, const MPMGeometry& geo, const float* velocity,
-                      float vp_out[3][kGroupLanes], float C_out[9][kGroupLanes]) {
+// v rounded to float before anything else uses it (product_rn for 8 lanes).
+inline Vec8 rounded8(Vec8 v) {
+#if defined(__AVX512F__)
+  asm("" : "+v"(v));
+#else
+  asm("" : "+x"(v));
+#endif
+  return v;
+}
+
+// g2p_gather_cpu and g2p_advect for the particles of `group` (all on the grid `velocity`, side A
+// everywhere), lane l for particle group.first + l: writes x, v and C of `out` and F_trial[i][l];
+// returns how many positions were clamped. The weights are axis_weights' operations on 8 lanes
+// (the squares rounded before anything uses them): the particles weigh the nodes as P2G does.
+int g2p_group(const GatherGroup& group, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* velocity,
+              const G2POutputs& out, float F_trial[9][kGroupLanes]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
-  Vec8 w[3][3], f[3];
+  const int count = group.count;
+  const long long q0 = group.first;
+  Vec8 xp[3], w[3][3], f[3];
   for (int d = 0; d < 3; ++d) {
-    __builtin_memcpy(&f[d], group.f[d], sizeof(Vec8));
-    for (int a = 0; a < 3; ++a) __builtin_memcpy(&w[d][a], group.w[d][a], sizeof(Vec8));
+    float lanes[kGroupLanes];
+    for (int l = 0; l < kGroupLanes; ++l) lanes[l] = in.x[3 * (q0 + (l < count ? l : 0)) + d];
+    __builtin_memcpy(&xp[d], lanes, sizeof(Vec8));
+    const Vec8 X = rounded8((xp[d] - geo.lower[d]) * geo.inv_dx);  // grid_coordinate
+    f[d] = X - (float)group.base[d];
+    w[d][0] = 0.5f * rounded8((1.5f - f[d]) * (1.5f - f[d]));
+    w[d][1] = 0.75f - rounded8((f[d] - 1.f) * (f[d] - 1.f));
+    w[d][2] = 0.5f * rounded8((f[d] - 0.5f) * (f[d] - 0.5f));
   }
   int oz[3];
   Vec8 wz_pz[3];
@@ -714,13 +725,45 @@ void g2p_gather_group(const GatherGroup& group, const MPMGeometry& geo, const fl
     }
   }
   const float apic_scale = 4.f * geo.inv_dx * geo.inv_dx;
+  Vec8 C[9];
   for (int d = 0; d < 3; ++d) {
-    const Vec8 cx = apic_scale * bx[d], cy = apic_scale * by[d], cz = apic_scale * bz[d];
-    __builtin_memcpy(vp_out[d], &vp[d], sizeof(Vec8));
-    __builtin_memcpy(C_out[3 * d], &cx, sizeof(Vec8));
-    __builtin_memcpy(C_out[3 * d + 1], &cy, sizeof(Vec8));
-    __builtin_memcpy(C_out[3 * d + 2], &cz, sizeof(Vec8));
+    C[3 * d] = apic_scale * bx[d];
+    C[3 * d + 1] = apic_scale * by[d];
+    C[3 * d + 2] = apic_scale * bz[d];
   }
+  // g2p_advect on the lanes: the position (clamped into the domain), then F_trial = (I + dt C) F_E.
+  float x_new[3][kGroupLanes], v_new[3][kGroupLanes], C_new[9][kGroupLanes];
+  int clamped_lanes = 0;
+  for (int d = 0; d < 3; ++d) {
+    const Vec8 moved = xp[d] + dt * vp[d];
+    const auto below = moved < in.clamp_lower[d], above = moved > in.clamp_upper[d];
+    const Vec8 kept = below ? moved * 0.f + in.clamp_lower[d] : (above ? moved * 0.f + in.clamp_upper[d] : moved);
+    __builtin_memcpy(x_new[d], &kept, sizeof(Vec8));
+    __builtin_memcpy(v_new[d], &vp[d], sizeof(Vec8));
+    for (int l = 0; l < count; ++l) clamped_lanes |= (below[l] | above[l]) ? 1 << l : 0;
+  }
+  for (int i = 0; i < 9; ++i) __builtin_memcpy(C_new[i], &C[i], sizeof(Vec8));
+  Vec8 F_E[9];
+  for (int i = 0; i < 9; ++i) {
+    float lanes[kGroupLanes];
+    for (int l = 0; l < kGroupLanes; ++l) lanes[l] = in.F_E[9 * (q0 + (l < count ? l : 0)) + i];
+    __builtin_memcpy(&F_E[i], lanes, sizeof(Vec8));
+  }
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) {
+      const Vec8 product = (dt * C[3 * r]) * F_E[c] + (dt * C[3 * r + 1]) * F_E[3 + c] +
+                           (dt * C[3 * r + 2]) * F_E[6 + c] + F_E[3 * r + c];
+      __builtin_memcpy(F_trial[3 * r + c], &product, sizeof(Vec8));
+    }
+  for (int l = 0; l < count; ++l) {
+    const long long q = q0 + l;
+    for (int d = 0; d < 3; ++d) {
+      out.x[3 * q + d] = x_new[d][l];
+      out.v[3 * q + d] = v_new[d][l];
+    }
+    for (int i = 0; i < 9; ++i) out.C[9 * q + i] = C_new[i][l];
+  }
+  return __builtin_popcount(clamped_lanes);
 }
 
 }  // namespace
@@ -776,26 +819,16 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
     GatherGroup group;
     auto flush_group = [&]() {
       if (group.count >= kMinGroup) {
-        float vp[3][kGroupLanes], C[9][kGroupLanes];
+        float F_trial[9][kGroupLanes];
         const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[group.first] * nodes;
-        g2p_gather_group(group, geo, own_grid, vp, C);
+        clamped += g2p_group(group, in, geo, dt, own_grid, out, F_trial);
         for (int l = 0; l < group.count; ++l) {
-          const long long q = group.first + l;
-          const float velocity_p[3] = {vp[0][l], vp[1][l], vp[2][l]};
-          float C_q[9], F_trial[9];
-          for (int i = 0; i < 9; ++i) C_q[i] = C[i][l];
-          const bool was_clamped = g2p_advect(q, in, dt, velocity_p, C_q, out, F_trial);
-          finish_particle(q, was_clamped, F_trial);
+          float F_lane[9];
+          for (int i = 0; i < 9; ++i) F_lane[i] = F_trial[i][l];
+          finish_particle(group.first + l, false, F_lane);
         }
       } else {
-        for (int l = 0; l < group.count; ++l) {
-          const long long q = group.first + l;
-          float F_trial[9];
-          const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[q] * nodes;
-          const bool was_clamped =
-              g2p_gather_cpu(q, group.lane[l], in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
-          finish_particle(q, was_clamped, F_trial);
-        }
+        for (int l = 0; l < group.count; ++l) gather_one(group.first + l);
       }
       group.count = 0;
     };
@@ -816,21 +849,16 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
           gather_one(q);
           continue;
         }
-        AxisWeights aw[3];
-        stencil_weights(in.x + 3 * q, geo, aw);
+        int base[3];
+        stencil_base(in.x + 3 * q, geo, base);
         const bool joins = group.count > 0 && group.count < kGroupLanes && in.grid_id[q] == in.grid_id[group.first] &&
-                           aw[0].base == group.base[0] && aw[1].base == group.base[1] && aw[2].base == group.base[2];
+                           base[0] == group.base[0] && base[1] == group.base[1] && base[2] == group.base[2];
         if (!joins) {
           flush_group();
           group.first = q;
-          for (int d = 0; d < 3; ++d) group.base[d] = aw[d].base;
+          for (int d = 0; d < 3; ++d) group.base[d] = base[d];
         }
-        const int l = group.count++;
-        for (int d = 0; d < 3; ++d) group.lane[l][d] = aw[d];
-        for (int d = 0; d < 3; ++d) {
-          group.f[d][l] = aw[d].f;
-          for (int a = 0; a < 3; ++a) group.w[d][a][l] = aw[d].w[a];
-        }
+        ++group.count;
       }
       flush_group();
     }
