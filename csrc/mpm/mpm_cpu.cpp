@@ -313,42 +313,50 @@ long long p2g_cell_window(const BinsView& bins, int cell, const ParticleArrays& 
   });
 }
 
-// Adds a cell's window into the grid fields of its object (blocks outside the grid are skipped:
-// no stencil reaches them, so their records are zero). Position moment and mass gradient go only
-// to contact blocks (contact[block] != 0; none if contact is nullptr); gradient_window is read
-// only there.
-void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRICT gradient_window,
-                      const int block_ijk[3], const GridShape& s, const uint8_t* contact, float* FGS_RESTRICT mass,
-                      float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient, float* FGS_RESTRICT moment,
-                      float* FGS_RESTRICT damage) {
+// Runs row(block, window_offset, grid_node) for each row of kBlock nodes along z of a cell's
+// window: window_offset is the row's first node in the window, grid_node its first node in the
+// object's grid (block: the grid block holding the row). Blocks outside the grid are skipped: no
+// stencil reaches them, so their records are zero.
+template <class Row>
+void for_window_rows(const int block_ijk[3], const GridShape& s, const Row& row) {
   for (int di = 0; di < 2; ++di)
     for (int dj = 0; dj < 2; ++dj)
       for (int dk = 0; dk < 2; ++dk) {
         const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
         if (bi >= s.bx || bj >= s.by || bk >= s.bz) continue;
         const int block = (bi * s.by + bj) * s.bz + bk;
-        const bool with_contact = contact != nullptr && contact[block] != 0;
         const long long first = (long long)block * kBlockNodes;
         for (int li = 0; li < kBlock; ++li)
-          for (int lj = 0; lj < kBlock; ++lj) {
-            const int src_offset = ((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock;
-            const Record* src = window + src_offset;
-            const long long dst = first + (li * kBlock + lj) * kBlock;
-            for (int lk = 0; lk < kBlock; ++lk) {
-              const Record r = src[lk];
-              const long long idx = dst + lk;
-              mass[idx] += r[0];
-              for (int d = 0; d < 3; ++d) momentum[3 * idx + d] += r[1 + d];
-              if (damage) damage[idx] += r[7];
-              if (with_contact && moment)
-                for (int d = 0; d < 3; ++d) moment[3 * idx + d] += r[4 + d];
-              if (with_contact && gradient) {
-                const Lane4 g = gradient_window[src_offset + lk];
-                for (int d = 0; d < 3; ++d) gradient[3 * idx + d] += g[d];
-              }
-            }
-          }
+          for (int lj = 0; lj < kBlock; ++lj)
+            row(block, ((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock,
+                first + (li * kBlock + lj) * kBlock);
       }
+}
+
+// Adds a cell's window into the grid fields of its object. Position moment and mass gradient go
+// only to contact blocks (contact[block] != 0; none if contact is nullptr); gradient_window is read
+// only there.
+void p2g_flush_window(const Record* FGS_RESTRICT window, const Lane4* FGS_RESTRICT gradient_window,
+                      const int block_ijk[3], const GridShape& s, const uint8_t* contact, float* FGS_RESTRICT mass,
+                      float* FGS_RESTRICT momentum, float* FGS_RESTRICT gradient, float* FGS_RESTRICT moment,
+                      float* FGS_RESTRICT damage) {
+  for_window_rows(block_ijk, s, [&](int block, int src_offset, long long dst) {
+    const bool with_contact = contact != nullptr && contact[block] != 0;
+    const Record* src = window + src_offset;
+    for (int lk = 0; lk < kBlock; ++lk) {
+      const Record r = src[lk];
+      const long long idx = dst + lk;
+      mass[idx] += r[0];
+      for (int d = 0; d < 3; ++d) momentum[3 * idx + d] += r[1 + d];
+      if (damage) damage[idx] += r[7];
+      if (with_contact && moment)
+        for (int d = 0; d < 3; ++d) moment[3 * idx + d] += r[4 + d];
+      if (with_contact && gradient) {
+        const Lane4 g = gradient_window[src_offset + lk];
+        for (int d = 0; d < 3; ++d) gradient[3 * idx + d] += g[d];
+      }
+    }
+  });
 }
 
 #if defined(__AVX512F__)
@@ -411,22 +419,13 @@ long long p2g_cell_window_mass(const BinsView& bins, int cell, const ParticleArr
 // Adds a window of p2g_cell_window_mass into the grid's mass and momentum (as p2g_flush_window).
 void p2g_flush_window_mass(const float* FGS_RESTRICT window, const int block_ijk[3], const GridShape& s,
                            float* FGS_RESTRICT mass, float* FGS_RESTRICT momentum) {
-  for (int di = 0; di < 2; ++di)
-    for (int dj = 0; dj < 2; ++dj)
-      for (int dk = 0; dk < 2; ++dk) {
-        const int bi = block_ijk[0] + di, bj = block_ijk[1] + dj, bk = block_ijk[2] + dk;
-        if (bi >= s.bx || bj >= s.by || bk >= s.bz) continue;
-        const long long first = (long long)((bi * s.by + bj) * s.bz + bk) * kBlockNodes;
-        for (int li = 0; li < kBlock; ++li)
-          for (int lj = 0; lj < kBlock; ++lj) {
-            const float* src = window + 4 * (((di * kBlock + li) * kWindow + dj * kBlock + lj) * kWindow + dk * kBlock);
-            const long long dst = first + (li * kBlock + lj) * kBlock;
-            for (int lk = 0; lk < kBlock; ++lk) {
-              mass[dst + lk] += src[4 * lk];
-              for (int d = 0; d < 3; ++d) momentum[3 * (dst + lk) + d] += src[4 * lk + 1 + d];
-            }
-          }
-      }
+  for_window_rows(block_ijk, s, [&](int, int src_offset, long long dst) {
+    const float* src = window + 4 * src_offset;
+    for (int lk = 0; lk < kBlock; ++lk) {
+      mass[dst + lk] += src[4 * lk];
+      for (int d = 0; d < 3; ++d) momentum[3 * (dst + lk) + d] += src[4 * lk + 1 + d];
+    }
+  });
 }
 #endif
 
@@ -737,7 +736,8 @@ int g2p_group(const GatherGroup& group, const G2PInputs& in, const MPMGeometry& 
   for (int d = 0; d < 3; ++d) {
     const Vec8 moved = xp[d] + dt * vp[d];
     const auto below = moved < in.clamp_lower[d], above = moved > in.clamp_upper[d];
-    const Vec8 kept = below ? moved * 0.f + in.clamp_lower[d] : (above ? moved * 0.f + in.clamp_upper[d] : moved);
+    const Vec8 lower = Vec8{} + in.clamp_lower[d], upper = Vec8{} + in.clamp_upper[d];
+    const Vec8 kept = below ? lower : (above ? upper : moved);
     __builtin_memcpy(x_new[d], &kept, sizeof(Vec8));
     __builtin_memcpy(v_new[d], &vp[d], sizeof(Vec8));
     for (int l = 0; l < count; ++l) clamped_lanes |= (below[l] | above[l]) ? 1 << l : 0;
