@@ -235,6 +235,50 @@ def test_crack_normals_make_references_and_cut_along_their_plane(device):
     assert len(near) >= 4 and float((side == plane).float().mean()) >= 0.75
 
 
+def test_p2g_gives_contact_fields_wherever_a_node_can_split():
+    """With fragments, P2G sums the contact fields (mass gradient, position moment) only in blocks
+    that may hold a split node (within reach of a damaged particle) and in contact blocks. Every block
+    the reference pass splits must have them in full, as the twin sums them over every node: a few
+    isolated damaged particles and a split gradient low enough that any particle reaching damage
+    splits its whole stencil, the farthest a split reaches (blocks c - 1 .. c + 2 of a damaged cell c)."""
+    domain = Domain((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), 32)
+    geometry = GridGeometry.from_domain(domain, 1)
+    gen = torch.Generator().manual_seed(11)
+    spacing = domain.dx / 2
+    axis = torch.arange(0.15, 0.85, spacing)
+    lattice = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    x = (lattice + 0.3 * spacing * torch.randn(lattice.shape, generator=gen)).float().contiguous()
+    n = x.shape[0]
+    damaged = torch.zeros(n, dtype=torch.bool)
+    damaged[torch.randperm(n, generator=gen)[:12]] = True
+    p = {"x": x, "v": torch.randn(n, 3, generator=gen), "C": torch.randn(n, 3, 3, generator=gen),
+         "stress": 1e2 * torch.randn(n, 3, 3, generator=gen), "mass": 0.5 + torch.rand(n, generator=gen),
+         "rest_volume": 1e-4 * torch.ones(n), "grid_id": torch.zeros(n, dtype=torch.int32), "damaged": damaged}
+    split_gradient, dt = 1e-3 / domain.dx, 1e-4
+    fields_geo = field_geometry(geometry)
+    bins = ops.bin_particles(p["x"], p["grid_id"], geometry, backend="cpp")
+    fields = GridFields.zeros(fields_geo, CPU, with_contact=True, with_fragments=True)
+    ops.p2g(bins, *(p[k] for k in P2G_KEYS), p["grid_id"], fields_geo, dt, fields, backend="cpp",
+            damaged=p["damaged"])
+    after_p2g = cast(fields, torch.float64)
+    ops.fragment_reference(bins, p["x"], p["grid_id"], geometry, 1e-12, split_gradient, fields, backend="cpp")
+    split = reference._split_nodes(fields.reference[0], split_gradient).view(geometry.n_blocks, -1).any(1)
+    twin = cast(GridFields.zeros(fields_geo, CPU, with_contact=True, with_fragments=True), torch.float64)
+    reference.p2g(*(p[k].double() for k in P2G_KEYS), p["grid_id"], fields_geo, dt, twin, p["damaged"])
+    in_split_block = split.repeat_interleave(BLOCK ** 3)
+    for name in ("mass_gradient", "position_moment"):
+        got = getattr(after_p2g, name)[0].reshape(-1, 3)[in_split_block]
+        assert rel_err(got, getattr(twin, name)[0].reshape(-1, 3)[in_split_block]) < REL_TOL, name
+    # The data reaches the far end: some split block lies outside the window (c .. c + 1) of every
+    # damaged particle's cell.
+    base = torch.floor(x.double() / domain.dx - 0.5).long()       # stencil base node (lower corner 0)
+    damaged_cells = torch.unique(torch.div(base[damaged], BLOCK, rounding_mode="floor"), dim=0)
+    split_ijk = torch.stack(torch.unravel_index(torch.nonzero(split).flatten(), geometry.blocks), 1)
+    offset = split_ijk[:, None, :] - damaged_cells[None, :, :]
+    in_window = ((offset >= 0) & (offset <= 1)).all(2).any(1)
+    assert int(split.sum()) > 0 and int((~in_window).sum()) > 0
+
+
 def test_partition_empties_side_a_where_every_particle_is_on_side_b():
     """Field A at a split node is P2G's sum minus side B; where every particle of the node is on side
     B that difference is only rounding, and the node's whole sum must move to B with A exactly 0

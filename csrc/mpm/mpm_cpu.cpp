@@ -7,6 +7,7 @@
 #include <omp.h>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <vector>
 #if defined(__AVX512F__)
 #include <immintrin.h>
@@ -74,10 +75,12 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   const long long n_keys = (long long)geo.n_grids * n_blocks;
   const int limit[3] = {s.bx * kBlock - 3, s.by * kBlock - 3, s.bz * kBlock - 3};
   const int parts = omp_get_max_threads();
-  std::vector<int32_t> key(n);
-  std::vector<uint8_t> reach(n);  // bit d set: the stencil reaches the next block along axis d
+  std::unique_ptr<int32_t[]> key(new int32_t[n]);  // every entry written below
+  std::unique_ptr<uint8_t[]> reach(new uint8_t[n]);  // bit d set: the stencil reaches the next block along axis d
   // slot[t * n_keys + k]: particles of key k in thread t's range, then the first slot they take.
   std::vector<int32_t> slot((size_t)parts * n_keys, 0);
+  // key_reach[t * n_keys + k]: the reach bits of thread t's particles of key k, OR-ed.
+  std::vector<uint8_t> key_reach((size_t)parts * n_keys, 0);
   std::vector<long long> chunk_total(parts + 1, 0), chunk_cells(parts + 1, 0);
   long long bad = -1;
   int counted_by = parts;  // the team that counted: its ranges and slot rows place the particles below
@@ -87,6 +90,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
     long long begin, end;
     split_range(n, team, t, &begin, &end);
     int32_t* count = slot.data() + (size_t)t * n_keys;
+    uint8_t* run_reach = key_reach.data() + (size_t)t * n_keys;
     for (long long p = begin; p < end; ++p) {
       int base[3];
       bool ok = grid_id[p] >= 0 && grid_id[p] < geo.n_grids;
@@ -100,6 +104,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
       if (!ok) {
         bad = std::max(bad, p);
         key[p] = 0;
+        reach[p] = 0;
         continue;
       }
       const int block = ((base[0] >> kBlockBits) * s.by + (base[1] >> kBlockBits)) * s.bz + (base[2] >> kBlockBits);
@@ -110,9 +115,11 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
     // and a counter kept in a register avoids a load-store chain through count[].
     for (long long p = begin; p < end;) {
       const int32_t k = key[p];
+      uint8_t r = reach[p];
       long long run_end = p + 1;
-      while (run_end < end && key[run_end] == k) ++run_end;
+      for (; run_end < end && key[run_end] == k; ++run_end) r |= reach[run_end];
       count[k] += (int32_t)(run_end - p);
+      run_reach[k] |= r;
       p = run_end;
     }
 #pragma omp barrier
@@ -185,7 +192,7 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
   for (int c = 0; c < n_cells; ++c) {
     const int k = bins->cell_key[c];
     uint8_t r = 0;
-    for (int i = bins->cell_start[c]; i < bins->cell_start[c + 1]; ++i) r |= reach[bins->order[i]];
+    for (int u = 0; u < counted_by; ++u) r |= key_reach[(size_t)u * n_keys + k];
     const int g = k / n_blocks, block = k % n_blocks;
     const int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
     for (int di = 0; di <= ((r >> 0) & 1); ++di)
@@ -429,6 +436,33 @@ void p2g_flush_window_mass(const float* FGS_RESTRICT window, const int block_ijk
 }
 #endif
 
+// Marks (flags[block] = 1) every block that may hold a split node in this substep, from the damage
+// flags of the particles: a node's damage D_i is nonzero only in the window (blocks c .. c + 1 per
+// axis) of a cell c holding a damaged particle; a particle's damage gradient only if its stencil
+// reaches such a node, so its cell lies within c - 1 .. c + 1; and its reference key can split only
+// the nodes of its stencil, in blocks c - 1 .. c + 2 (csrc/common/mpm_fragments.h). Blocks outside
+// this reach never split, and need the contact fields only where they are contact blocks. Marked
+// for every grid alike (a superset).
+void mark_split_reach(const BinsView& bins, const uint8_t* damaged, const GridShape& s, uint8_t* flags) {
+  const int n_blocks = s.blocks();
+  std::vector<uint8_t> damaged_cell(bins.n_cells);
+#pragma omp parallel for schedule(static)
+  for (int cell = 0; cell < bins.n_cells; ++cell) {
+    uint8_t any = 0;
+    for (int it = bins.cell_start[cell]; it < bins.cell_start[cell + 1]; ++it) any |= damaged[bins.order[it]];
+    damaged_cell[cell] = any;
+  }
+  for (int cell = 0; cell < bins.n_cells; ++cell) {
+    if (!damaged_cell[cell]) continue;
+    const int block = bins.cell_key[cell] % n_blocks;
+    const int c[3] = {block / (s.by * s.bz), (block / s.bz) % s.by, block % s.bz};
+    for (int bi = std::max(c[0] - 1, 0); bi <= std::min(c[0] + 2, s.bx - 1); ++bi)
+      for (int bj = std::max(c[1] - 1, 0); bj <= std::min(c[1] + 2, s.by - 1); ++bj)
+        for (int bk = std::max(c[2] - 1, 0); bk <= std::min(c[2] + 2, s.bz - 1); ++bk)
+          flags[(bi * s.by + bj) * s.bz + bk] = 1;
+  }
+}
+
 }  // namespace
 
 BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeometry& geo, float dt,
@@ -450,15 +484,15 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
   }
   // Contact blocks (block ids touched by two grids): only there does P2G add the position moment
   // and the mass gradient, the contact pass's inputs; a cell computes the gradient only if its
-  // window (2x2x2 blocks) contains one.
-  // With fragments (grid.damage given) any node may turn out split, and the two sides of a split
-  // node meet through the contact pass, which needs both: then every block gets them.
+  // window (2x2x2 blocks) contains one. With fragments the two sides of a split node meet through
+  // the contact pass too, so the blocks that may hold a split node this substep get them as well
+  // (mark_split_reach).
   std::vector<uint8_t> contact_flag;
-  if (grid.damage && grid.mass_gradient && grid.position_moment) {
-    contact_flag.assign(n_blocks, 1);
-  } else if ((grid.mass_gradient || grid.position_moment) && bins.n_contact > 0) {
+  const bool fragments = p.damaged != nullptr && grid.mass_gradient && grid.position_moment;
+  if (fragments || ((grid.mass_gradient || grid.position_moment) && bins.n_contact > 0)) {
     contact_flag.assign(n_blocks, 0);
     for (int i = 0; i < bins.n_contact; ++i) contact_flag[bins.contact_blocks[i]] = 1;
+    if (fragments) mark_split_reach(bins, p.damaged, s, contact_flag.data());
   }
   const uint8_t* contact = contact_flag.empty() ? nullptr : contact_flag.data();
   long long misplaced = std::numeric_limits<long long>::max();
@@ -467,9 +501,9 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
     std::vector<Record> window(kWindowNodes);  // per thread
     std::vector<Lane4> gradient_window(contact ? kWindowNodes : 0);
 #if defined(__AVX512F__)
-    // Cells without contact fields or fragment damage take the 4-float records.
-    const bool mass_only = grid.damage == nullptr && p.damaged == nullptr;
-    std::vector<float> window_mass(mass_only ? 4 * kWindowNodes : 0);
+    // Cells with no contact fields in their window take the 4-float records (with fragments such
+    // a cell has no damaged particle, mark_split_reach: its damage lane would be zero).
+    std::vector<float> window_mass(4 * kWindowNodes);
 #endif
     for (int color = 0; color < 8; ++color) {
       const int c_begin = bins.color_start[color], c_end = bins.color_start[color + 1];
@@ -489,7 +523,7 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
               }
         const long long grid_offset = (long long)grid_index * nodes;
 #if defined(__AVX512F__)
-        if (mass_only && !near_contact) {
+        if (!near_contact) {
           const long long stray = p2g_cell_window_mass(bins, cell, p, geo, dt, origin, window_mass.data());
           if (stray >= 0 && stray < misplaced) misplaced = stray;
           p2g_flush_window_mass(window_mass.data(), block_ijk, s, grid.mass + grid_offset,
