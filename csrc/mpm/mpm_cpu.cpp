@@ -689,10 +689,14 @@ constexpr int kGroupLanes = 8;
 constexpr int kMinGroup = 3;
 using Vec8 = float __attribute__((vector_size(32)));
 
+using Vec8i = int32_t __attribute__((vector_size(32)));
+
 struct GatherGroup {
   long long first;  // the particles first .. first + count - 1
   int count = 0;
   int base[3];      // their common stencil base
+  int32_t side_masks[kGroupLanes];  // each particle's side mask (fragments; 0: side A everywhere)
+  uint32_t any_side_b = 0;          // the masks OR-ed
 };
 
 // v rounded to float before anything else uses it (product_rn for 8 lanes).
@@ -705,12 +709,14 @@ inline Vec8 rounded8(Vec8 v) {
   return v;
 }
 
-// g2p_gather_cpu and g2p_advect for the particles of `group` (all on the grid `velocity`, side A
-// everywhere), lane l for particle group.first + l: writes x, v and C of `out` and F_trial[i][l];
-// returns how many positions were clamped. The weights are axis_weights' operations on 8 lanes
-// (the squares rounded before anything uses them): the particles weigh the nodes as P2G does.
+// g2p_gather_cpu and g2p_advect for the particles of `group` (all on the grid `velocity`), lane l
+// for particle group.first + l: writes x, v and C of `out` and F_trial[i][l]; returns how many
+// positions were clamped. The weights are axis_weights' operations on 8 lanes (the squares rounded
+// before anything uses them): the particles weigh the nodes as P2G does. With fragments, a lane
+// whose side mask has a stencil node's bit reads that node's field B (field_b floats later), as
+// MaskedNodeVelocity: both fields' values are broadcast and each lane selects its own.
 int g2p_group(const GatherGroup& group, const G2PInputs& in, const MPMGeometry& geo, float dt, const float* velocity,
-              const G2POutputs& out, float F_trial[9][kGroupLanes]) {
+              long long field_b, const G2POutputs& out, float F_trial[9][kGroupLanes]) {
   const GridShape& s = geo.shape;
   const float dx = geo.dx;
   const int count = group.count;
@@ -732,6 +738,8 @@ int g2p_group(const GatherGroup& group, const G2PInputs& in, const MPMGeometry& 
     oz[c] = offset_z(group.base[2] + c, s);
     wz_pz[c] = w[2][c] * (((float)c - f[2]) * dx);
   }
+  Vec8i side_masks;
+  __builtin_memcpy(&side_masks, group.side_masks, sizeof(Vec8i));
   Vec8 vp[3] = {}, bx[3] = {}, by[3] = {}, bz[3] = {};  // B column k = sum w v (x_i - x_p)_k
   for (int a = 0; a < 3; ++a) {
     const int ox = offset_x(group.base[0] + a, s);
@@ -742,6 +750,16 @@ int g2p_group(const GatherGroup& group, const G2PInputs& in, const MPMGeometry& 
       Vec8 column[3] = {}, column_z[3] = {};
       for (int c = 0; c < 3; ++c) {
         const float* v = velocity + 3 * (long long)(oxy + oz[c]);
+        const uint32_t bit = side_bit(a, b, c);
+        if (group.any_side_b & bit) {  // some lane reads field B here
+          const Vec8i on_side_b = (side_masks & (int32_t)bit) != 0;
+          for (int d = 0; d < 3; ++d) {
+            const Vec8 node = on_side_b ? Vec8{} + v[d + field_b] : Vec8{} + v[d];
+            column[d] += w[2][c] * node;
+            column_z[d] += wz_pz[c] * node;
+          }
+          continue;
+        }
         for (int d = 0; d < 3; ++d) {
           column[d] += w[2][c] * v[d];
           column_z[d] += wz_pz[c] * v[d];
@@ -855,7 +873,8 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       if (group.count >= kMinGroup) {
         float F_trial[9][kGroupLanes];
         const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[group.first] * nodes;
-        clamped += g2p_group(group, in, geo, dt, own_grid, out, F_trial);
+        const long long field_b = frag != nullptr ? 3 * frag->n_fields * nodes : 0;
+        clamped += g2p_group(group, in, geo, dt, own_grid, field_b, out, F_trial);
         for (int l = 0; l < group.count; ++l) {
           float F_lane[9];
           for (int i = 0; i < 9; ++i) F_lane[i] = F_trial[i][l];
@@ -865,6 +884,7 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
         for (int l = 0; l < group.count; ++l) gather_one(group.first + l);
       }
       group.count = 0;
+      group.any_side_b = 0;
     };
     // Dynamic chunks of kChunk particles: the constitutive cost varies between particles
     // (eigen-path lanes). Groups never cross a chunk, and a particle's result depends only on its
@@ -874,15 +894,15 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
     for (long long chunk = 0; chunk < n_chunks; ++chunk) {
       const long long end = std::min(n, (chunk + 1) * kChunk);
       for (long long q = chunk * kChunk; q < end; ++q) {
-        // A particle joins the group if it reads its own object grid only (no fragment side B)
-        // and has the group's grid and stencil base.
-        const bool plain = frag == nullptr || frag->split_particle[q] == 0 ||
-                           (frag->side_mask != nullptr && frag->side_mask[q] == 0);
-        if (!plain) {
+        // A particle joins the group if it has the group's grid and stencil base and its sides
+        // are known from a side mask (or it reaches no split node).
+        const bool split = frag != nullptr && frag->split_particle[q] != 0;
+        if (split && frag->side_mask == nullptr) {
           flush_group();
           gather_one(q);
           continue;
         }
+        const int32_t side_mask = split ? frag->side_mask[q] : 0;
         int base[3];
         stencil_base(in.x + 3 * q, geo, base);
         const bool joins = group.count > 0 && group.count < kGroupLanes && in.grid_id[q] == in.grid_id[group.first] &&
@@ -891,8 +911,10 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
           flush_group();
           group.first = q;
           for (int d = 0; d < 3; ++d) group.base[d] = base[d];
+          for (int l = 0; l < kGroupLanes; ++l) group.side_masks[l] = 0;
         }
-        ++group.count;
+        group.side_masks[group.count++] = side_mask;
+        group.any_side_b |= (uint32_t)side_mask;
       }
       flush_group();
     }
