@@ -688,7 +688,6 @@ namespace {
 constexpr int kGroupLanes = 8;
 constexpr int kMinGroup = 3;
 using Vec8 = float __attribute__((vector_size(32)));
-
 using Vec8i = int32_t __attribute__((vector_size(32)));
 
 struct GatherGroup {
