@@ -187,7 +187,7 @@ def test_fragment_kernels_match_reference(seed, device):
 def test_grouped_g2p_reads_each_lanes_side():
     """The CPU G2P gathers runs of consecutive particles with one stencil base together, side B
     included (each lane selects field A or B per node from its side mask). The same particles and
-    fields in two orders, scattered (no runs: one by one) and sorted by stencil base (runs of up to
+    fields in two orders, shuffled (no runs: one by one) and sorted by stencil base (runs of up to
     8, many with side-B lanes), give the same results particle by particle."""
     geometry, p = cracked_particles(4)
     dt, split_gradient = 1e-4, 0.25 / geometry.dx
@@ -212,18 +212,23 @@ def test_grouped_g2p_reads_each_lanes_side():
                       torch.zeros(n, dtype=torch.int32), table, parted, geometry, dt, backend="cpp", fragments=frag)
         return [t[inverse] for t in out[:6]]
 
-    # Sorted by (grid, stencil base): a run is a set of consecutive particles with one base.
+    # A run: consecutive particles with one (grid, stencil base); G2P groups runs of 3 or more.
     base = torch.floor(p["x"].double() / geometry.dx - 0.5).long()
     key = ((p["grid_id"].long() * 64 + base[:, 0]) * 64 + base[:, 1]) * 64 + base[:, 2]
+
+    def side_b_in_runs(order: torch.Tensor) -> int:
+        ordered = key[order]
+        starts = torch.ones(n, dtype=torch.bool)
+        starts[1:] = ordered[1:] != ordered[:-1]
+        run_id = torch.cumsum(starts.long(), 0) - 1
+        run_length = torch.bincount(run_id)[run_id]
+        return int(((side_mask[order] != 0) & (run_length >= 3)).sum())
+
+    shuffled = torch.randperm(n, generator=torch.Generator().manual_seed(10))
     by_base = torch.argsort(key, stable=True)
-    sorted_key = key[by_base]
-    starts = torch.ones(n, dtype=torch.bool)
-    starts[1:] = sorted_key[1:] != sorted_key[:-1]
-    run_id = torch.cumsum(starts.long(), 0) - 1
-    run_length = torch.bincount(run_id)[run_id]
-    side_b_in_runs = (side_mask[by_base] != 0) & (run_length >= 3)
-    assert int(side_b_in_runs.sum()) >= 20, "the sorted order must put side-B particles in runs"
-    scattered = run(torch.arange(n))
+    assert side_b_in_runs(shuffled) == 0
+    assert side_b_in_runs(by_base) >= 20, "the sorted order must put side-B particles in runs"
+    scattered = run(shuffled)
     grouped = run(by_base)
     # The same gather (a few float ulp apart: other operation order). F_trial differs by an ulp of
     # F, which is 1e-5 of these strains (~1 %): the stress as the twin tests allow (REL_TOL).
