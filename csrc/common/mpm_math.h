@@ -33,13 +33,19 @@ HOST_DEVICE inline int offset_z(int k, const GridShape& s) {
 HOST_DEVICE inline int node_index(int i, int j, int k, const GridShape& s) {
   return offset_x(i, s) + offset_y(j, s) + offset_z(k, s);
 }
+// Block coordinates (x, y, z, in blocks) of a block id (blocks x-major, as node_index stores them).
+HOST_DEVICE inline void block_coords(int block, const GridShape& s, int* ijk) {
+  ijk[0] = block / (s.by * s.bz);
+  ijk[1] = (block / s.bz) % s.by;
+  ijk[2] = block % s.bz;
+}
 // Inverse of node_index: integer node coordinates of a linear index.
 HOST_DEVICE inline void node_coords(int index, const GridShape& s, int* ijk) {
-  int block = index / kBlockNodes, local = index % kBlockNodes;
-  int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
-  ijk[0] = bi * kBlock + local / (kBlock * kBlock);
-  ijk[1] = bj * kBlock + (local / kBlock) % kBlock;
-  ijk[2] = bk * kBlock + local % kBlock;
+  const int local = index % kBlockNodes;
+  block_coords(index / kBlockNodes, s, ijk);
+  ijk[0] = ijk[0] * kBlock + local / (kBlock * kBlock);
+  ijk[1] = ijk[1] * kBlock + (local / kBlock) % kBlock;
+  ijk[2] = ijk[2] * kBlock + local % kBlock;
 }
 
 // Quadratic B-spline weights of one particle along one axis.

@@ -26,9 +26,8 @@ constexpr int kSpanNodes = kSpan * kSpan * kSpan;
 
 // Node coordinates of the first node of a cell's span (the first node of its block).
 inline void span_origin(int block, const GridShape& s, int origin[3]) {
-  origin[0] = (block / (s.by * s.bz)) * kBlock;
-  origin[1] = ((block / s.bz) % s.by) * kBlock;
-  origin[2] = (block % s.bz) * kBlock;
+  block_coords(block, s, origin);
+  for (int d = 0; d < 3; ++d) origin[d] *= kBlock;
 }
 
 // Bit l set where lane l of v is < 0.

@@ -90,8 +90,10 @@ __global__ void partition_color_kernel(BinsView bins, int color_begin, ParticleA
   }
   const int g = bins.cell_key[cell] / n_blocks, block = bins.cell_key[cell] % n_blocks;
   if (t >= kTileNodes) return;
-  const int node_ijk[3] = {(block / (s.by * s.bz)) * kBlock + t / (kTile * kTile),
-                           ((block / s.bz) % s.by) * kBlock + (t / kTile) % kTile, (block % s.bz) * kBlock + t % kTile};
+  int b[3];
+  block_coords(block, s, b);
+  const int node_ijk[3] = {b[0] * kBlock + t / (kTile * kTile), b[1] * kBlock + (t / kTile) % kTile,
+                           b[2] * kBlock + t % kTile};
   if (node_ijk[0] >= s.bx * kBlock || node_ijk[1] >= s.by * kBlock || node_ijk[2] >= s.bz * kBlock) return;
   const long long node = node_index(node_ijk[0], node_ijk[1], node_ijk[2], s);
   const int64_t key = frag.reference[(long long)g * nodes + node];

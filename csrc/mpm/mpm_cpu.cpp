@@ -22,8 +22,9 @@ namespace fgs {
 namespace {
 
 inline int block_color(int block, const GridShape& s) {
-  int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
-  return ((bi & 1) << 2) | ((bj & 1) << 1) | (bk & 1);
+  int ijk[3];
+  block_coords(block, s, ijk);
+  return ((ijk[0] & 1) << 2) | ((ijk[1] & 1) << 1) | (ijk[2] & 1);
 }
 
 }  // namespace
@@ -193,12 +194,14 @@ long long bin_particles_cpu(const float* x, const int32_t* grid_id, long long n,
     const int k = bins->cell_key[c];
     uint8_t r = 0;
     for (int u = 0; u < counted_by; ++u) r |= key_reach[(size_t)u * n_keys + k];
-    const int g = k / n_blocks, block = k % n_blocks;
-    const int bk = block % s.bz, bj = (block / s.bz) % s.by, bi = block / (s.by * s.bz);
+    const int g = k / n_blocks;
+    int b[3];
+    block_coords(k % n_blocks, s, b);
     for (int di = 0; di <= ((r >> 0) & 1); ++di)
       for (int dj = 0; dj <= ((r >> 1) & 1); ++dj)
         for (int dk = 0; dk <= ((r >> 2) & 1); ++dk)
-          std::atomic_ref<uint8_t>(touched_mark[(long long)g * n_blocks + ((bi + di) * s.by + bj + dj) * s.bz + bk + dk])
+          std::atomic_ref<uint8_t>(
+              touched_mark[(long long)g * n_blocks + ((b[0] + di) * s.by + b[1] + dj) * s.bz + b[2] + dk])
               .store(1, std::memory_order_relaxed);
   }
   parallel_select(n_keys, &bins->touched, [&](long long k) { return touched_mark[k] != 0; });
@@ -454,8 +457,8 @@ void mark_split_reach(const BinsView& bins, const uint8_t* damaged, const GridSh
   }
   for (int cell = 0; cell < bins.n_cells; ++cell) {
     if (!damaged_cell[cell]) continue;
-    const int block = bins.cell_key[cell] % n_blocks;
-    const int c[3] = {block / (s.by * s.bz), (block / s.bz) % s.by, block % s.bz};
+    int c[3];
+    block_coords(bins.cell_key[cell] % n_blocks, s, c);
     for (int bi = std::max(c[0] - 1, 0); bi <= std::min(c[0] + 2, s.bx - 1); ++bi)
       for (int bj = std::max(c[1] - 1, 0); bj <= std::min(c[1] + 2, s.by - 1); ++bj)
         for (int bk = std::max(c[2] - 1, 0); bk <= std::min(c[2] + 2, s.bz - 1); ++bk)
@@ -511,7 +514,8 @@ BoundReport p2g_cpu(const BinsView& bins, const ParticleArrays& p, const MPMGeom
       for (int ci = c_begin; ci < c_end; ++ci) {
         const int cell = bins.color_cells[ci];
         const int grid_index = bins.cell_key[cell] / n_blocks, block = bins.cell_key[cell] % n_blocks;
-        const int block_ijk[3] = {block / (s.by * s.bz), (block / s.bz) % s.by, block % s.bz};
+        int block_ijk[3];
+        block_coords(block, s, block_ijk);
         const int origin[3] = {block_ijk[0] * kBlock, block_ijk[1] * kBlock, block_ijk[2] * kBlock};
         bool near_contact = false;
         if (contact)
@@ -850,6 +854,7 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       stream.push(q, F_trial, in.state + (long long)in.state_stride * q, in.state_stride, g2p_material_row(q, in),
                   store);
     };
+    const long long field_b = frag != nullptr ? 3 * frag->n_fields * nodes : 0;  // floats from field A to B
     // One particle on its own (every kind of fragment reading).
     auto gather_one = [&](long long q) {
       float F_trial[9];
@@ -861,7 +866,7 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
         was_clamped = g2p_gather_cpu(
             q, in, geo, dt, ReferenceNodeVelocity{{grid_velocity, frag, in.grid_id[q], q, nodes}}, out, F_trial);
       else if (mask != 0)  // side B somewhere in the stencil
-        was_clamped = g2p_gather_cpu(q, in, geo, dt, MaskedNodeVelocity{own_grid, 3 * frag->n_fields * nodes, mask},
+        was_clamped = g2p_gather_cpu(q, in, geo, dt, MaskedNodeVelocity{own_grid, field_b, mask},
                                      out, F_trial);
       else  // no fragments, or side A at every split node it reaches: the object's own grid
         was_clamped = g2p_gather_cpu(q, in, geo, dt, ObjectNodeVelocity{own_grid}, out, F_trial);
@@ -872,7 +877,6 @@ G2PStats g2p_cpu(long long n, const G2PInputs& in, const MPMGeometry& geo, float
       if (group.count >= kMinGroup) {
         float F_trial[9][kGroupLanes];
         const float* own_grid = grid_velocity + 3 * (long long)in.grid_id[group.first] * nodes;
-        const long long field_b = frag != nullptr ? 3 * frag->n_fields * nodes : 0;
         clamped += g2p_group(group, in, geo, dt, own_grid, field_b, out, F_trial);
         for (int l = 0; l < group.count; ++l) {
           float F_lane[9];

@@ -108,7 +108,9 @@ __global__ void p2g_color_kernel(BinsView bins, int color_begin, ParticleArrays 
   }
   const int key = bins.cell_key[cell];
   const int g = key / n_blocks, block = key % n_blocks;
-  const int origin[3] = {(block / (s.by * s.bz)) * kBlock, ((block / s.bz) % s.by) * kBlock, (block % s.bz) * kBlock};
+  int origin[3];
+  block_coords(block, s, origin);
+  for (int d = 0; d < 3; ++d) origin[d] *= kBlock;
   const int t = threadIdx.x;
   const int node[3] = {origin[0] + t / (kTile * kTile), origin[1] + (t / kTile) % kTile, origin[2] + t % kTile};
   float mass = 0.f, damage = 0.f, momentum[3] = {0.f, 0.f, 0.f}, gradient[3] = {0.f, 0.f, 0.f},
